@@ -1,0 +1,131 @@
+//! A2C: loss = mean(−log π(a|o)·A) + c_v·mean((V − R)²), A = R − V (no gradient),
+//! scalar reward = sum of the vector reward, shared trunk, entropy β = 0.
+
+use super::{check_finite, matrix, policy_diagnostics, Algorithm, UpdateStats};
+use crate::config::RunConfig;
+use crate::env::EnvLayout;
+use crate::nets::Agent;
+use crate::optim::Optimizer;
+use crate::returns::n_step_returns;
+use crate::rng::{rng_for, streams};
+use crate::rollout::Batch;
+use crate::{checkpoint, Result};
+use candle_core::{Device, Tensor, D};
+use saver_proto::NamedTensor;
+
+const STATS: &[&str] = &["policy_loss", "value_loss", "mu_abs_max", "log_std_mean"];
+
+/// The A2C learner state.
+pub struct A2c {
+    /// Agent with value head.
+    agent: Agent,
+    /// Its optimiser.
+    opt: Optimizer,
+    /// Env layout.
+    layout: EnvLayout,
+    /// γ.
+    gamma: f32,
+    /// Value-loss weight.
+    value_coef: f64,
+    /// Device of the tensors.
+    dev: Device,
+}
+
+impl A2c {
+    /// A fresh agent initialised from the run seed.
+    pub fn new(config: &RunConfig, dev: &Device) -> Result<Self> {
+        let layout = config.env.layout();
+        let mut rng = rng_for(config.seed, streams::INIT);
+        let agent = Agent::new(&layout, true, &mut rng, dev)?;
+        let opt = Optimizer::new(agent.params().vars.clone(), config.optimizer, config.lr)?;
+        Ok(Self {
+            agent,
+            opt,
+            layout,
+            gamma: config.gamma as f32,
+            value_coef: config.value_coef,
+            dev: dev.clone(),
+        })
+    }
+
+    /// log π(a|o) per row: Gaussian over the continuous dims plus the categorical term.
+    fn log_prob(&self, mu: &Tensor, log_std: &Tensor, actions: &Tensor) -> Result<Tensor> {
+        let c = self.layout.continuous;
+        let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
+        let mu_c = mu.narrow(1, 0, c)?;
+        let a_c = actions.narrow(1, 0, c)?;
+        let z = ((a_c - mu_c)? / log_std.exp()?)?;
+        let gauss = ((z.sqr()? * -0.5)? - log_std)?;
+        let mut logp = (gauss - half_log_2pi)?.sum(1)?;
+        if self.layout.choices > 0 {
+            let logits = mu.narrow(1, c, self.layout.choices)?;
+            let onehot = actions.narrow(1, c, self.layout.choices)?;
+            let log_soft = candle_nn::ops::log_softmax(&logits, D::Minus1)?;
+            logp = (logp + (log_soft * onehot)?.sum(1)?)?;
+        }
+        Ok(logp)
+    }
+}
+
+impl Algorithm for A2c {
+    fn stat_names(&self) -> &'static [&'static str] {
+        STATS
+    }
+
+    fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let (b, t, o) = (batch.len(), batch.n_traj, self.layout.obs_dim);
+        let obs = matrix(&batch.obs, b, o, &self.dev)?;
+        let last = matrix(&batch.last_obs, t, o, &self.dev)?;
+        let out = self.agent.forward(&Tensor::cat(&[&obs, &last], 0)?)?;
+        let value_all = out.value.expect("A2C agent has a value head");
+        let value = value_all.narrow(0, 0, b)?; // [B]
+        let bootstrap = value_all.narrow(0, b, t)?.to_vec1::<f32>()?; // [T]
+        let returns = n_step_returns(
+            &batch.scalar_reward(),
+            &batch.done,
+            &bootstrap,
+            batch.n_steps,
+            1,
+            self.gamma,
+        );
+        let returns = Tensor::from_vec(returns, b, &self.dev)?;
+        let advantage = (&returns - &value)?.detach();
+        let mu = out.mu.narrow(0, 0, b)?;
+        let log_std = out.log_std.narrow(0, 0, b)?;
+        let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
+        let logp = self.log_prob(&mu, &log_std, &actions)?;
+        let policy_loss = (logp * advantage)?.mean_all()?.neg()?;
+        let value_loss = ((value - returns)?.sqr()?.mean_all()? * self.value_coef)?;
+        let loss = (&policy_loss + &value_loss)?;
+        let grads = loss.backward()?;
+        self.opt.step(&grads)?;
+        let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
+        Ok(UpdateStats {
+            values: vec![
+                check_finite("policy_loss", policy_loss.to_scalar::<f32>()?)?,
+                check_finite("value_loss", value_loss.to_scalar::<f32>()?)?,
+                mu_abs_max,
+                log_std_mean,
+            ],
+        })
+    }
+
+    fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
+        checkpoint::to_named_all(&self.agent.params().tensors())
+    }
+
+    fn state_tensors(&self) -> Vec<(String, Tensor)> {
+        let mut t = self.agent.params().tensors();
+        t.extend(self.opt.slots());
+        t
+    }
+
+    fn optimizer_steps(&self) -> u64 {
+        self.opt.steps()
+    }
+
+    fn load_state(&mut self, get: &dyn Fn(&str) -> Option<Tensor>, steps: u64) -> Result<()> {
+        self.agent.params().load(get)?;
+        self.opt.restore(get, steps)
+    }
+}

@@ -1,0 +1,75 @@
+//! The learner's algorithms behind one trait, so the learner loop, checkpoints and
+//! weight publishing do not care which one runs (and a third, standalone QRRL, fits).
+
+mod a2c;
+pub(crate) mod saver;
+
+pub use a2c::A2c;
+pub use saver::{Saver, SaverLosses};
+
+use crate::config::{Algo, RunConfig};
+use crate::nets::Pcpn;
+use crate::rollout::Batch;
+use crate::{CoreError, Result};
+use candle_core::{Device, Tensor};
+use saver_proto::NamedTensor;
+
+/// Losses and diagnostics of one update, in the order of [`Algorithm::stat_names`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct UpdateStats {
+    /// Values, one per name.
+    pub values: Vec<f32>,
+}
+
+/// A learning algorithm: updates from batches and exposes its state.
+pub trait Algorithm: Send {
+    /// Names of the values in [`UpdateStats`] (CSV columns).
+    fn stat_names(&self) -> &'static [&'static str];
+    /// One update from a batch.
+    fn update(&mut self, batch: &Batch) -> Result<UpdateStats>;
+    /// The agent's weights (`agent.*`), what actors need.
+    fn policy_tensors(&self) -> Result<Vec<NamedTensor>>;
+    /// Everything a checkpoint needs: every trainable tensor and the optimiser slots.
+    fn state_tensors(&self) -> Vec<(String, Tensor)>;
+    /// Optimiser steps taken.
+    fn optimizer_steps(&self) -> u64;
+    /// Restores what [`Algorithm::state_tensors`] saved.
+    fn load_state(
+        &mut self,
+        get: &dyn Fn(&str) -> Option<Tensor>,
+        optimizer_steps: u64,
+    ) -> Result<()>;
+}
+
+/// Builds the configured algorithm; SAVER needs its frozen PCPN.
+pub fn build(config: &RunConfig, pcpn: Option<Pcpn>, dev: &Device) -> Result<Box<dyn Algorithm>> {
+    match config.algo {
+        Algo::A2c => Ok(Box::new(A2c::new(config, dev)?)),
+        Algo::Saver => {
+            let pcpn =
+                pcpn.ok_or_else(|| CoreError::Config("algo saver needs a pretrained PCPN".into()))?;
+            Ok(Box::new(Saver::new(config, pcpn, dev)?))
+        }
+    }
+}
+
+/// Diagnostics both algorithms report: max |μ| over the batch and mean log σ.
+pub(crate) fn policy_diagnostics(mu: &Tensor, log_std: &Tensor) -> Result<(f32, f32)> {
+    let mu_abs_max = mu.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+    let log_std_mean = log_std.mean_all()?.to_scalar::<f32>()?;
+    Ok((mu_abs_max, log_std_mean))
+}
+
+/// A tensor [rows, cols] from a row-major slice.
+pub(crate) fn matrix(data: &[f32], rows: usize, cols: usize, dev: &Device) -> Result<Tensor> {
+    Ok(Tensor::from_slice(data, (rows, cols), dev)?)
+}
+
+/// Fails with a clear error when a loss is not finite.
+pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(CoreError::Diverged(format!("{name} is {v}")))
+    }
+}

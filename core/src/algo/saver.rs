@@ -1,0 +1,220 @@
+//! SAVER (paper Section 4): the agent is trained through the frozen PCPN with the QRRL
+//! loss on vector advantages; a separate vector critic learns V(o, μ, log σ) ∈ R^d.
+//!
+//! L_a   = mean_{B·K·d} ρ_τ(Δp − PCPN(x, τ)) · Â_j        (agent only, via μ, log σ)
+//! L_mon = λ_mon · 2K · mean_{B·K·K·d} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
+//! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
+
+use super::{check_finite, matrix, policy_diagnostics, Algorithm, UpdateStats};
+use crate::config::{RunConfig, SaverConfig};
+use crate::embedding::{cosine_embedding, EMBED_DIM};
+use crate::env::EnvLayout;
+use crate::loss::{monotonic_penalty, quantile_loss};
+use crate::nets::{Agent, Critic, Pcpn};
+use crate::optim::Optimizer;
+use crate::returns::n_step_returns;
+use crate::rng::{rng_for, streams, uniform01, SaverRng};
+use crate::rollout::Batch;
+use crate::{checkpoint, Result};
+use candle_core::{Device, Tensor};
+use saver_proto::NamedTensor;
+
+const STATS: &[&str] = &[
+    "actor_loss",
+    "mon_loss",
+    "critic_loss",
+    "mu_abs_max",
+    "log_std_mean",
+];
+
+/// The SAVER learner state.
+pub struct Saver {
+    /// The agent (no value head).
+    agent: Agent,
+    /// The vector critic.
+    critic: Critic,
+    /// The frozen PCPN (plain tensors: no gradient ever reaches its weights).
+    pcpn: Pcpn,
+    /// One optimiser over agent and critic variables.
+    opt: Optimizer,
+    /// The τ stream.
+    rng: SaverRng,
+    /// Env layout.
+    layout: EnvLayout,
+    /// γ.
+    gamma: f32,
+    /// Loss constants.
+    cfg: SaverConfig,
+    /// Device.
+    dev: Device,
+}
+
+/// The two agent-side loss terms of one batch (scalars).
+pub struct SaverLosses {
+    /// L_a.
+    pub actor: Tensor,
+    /// L_mon (weighted).
+    pub mon: Tensor,
+}
+
+/// τ [d, B, K] and its cosine embedding [d, B, K, 128] as tensors.
+pub fn tau_tensors(
+    taus: &[f32],
+    d: usize,
+    b: usize,
+    k: usize,
+    dev: &Device,
+) -> Result<(Tensor, Tensor)> {
+    let cos = cosine_embedding(taus, EMBED_DIM);
+    Ok((
+        Tensor::from_slice(taus, (d, b, k), dev)?,
+        Tensor::from_vec(cos, (d, b, k, EMBED_DIM), dev)?,
+    ))
+}
+
+/// SAVER's agent-side losses for given policy outputs.
+///
+/// `obs` [B, O], `mu` [B, M], `log_std` [B, L] (gradients flow from here), `state_delta`
+/// and `advantage` [B, d] (constants), `tau` [d, B, K] with its embedding `cos`.
+#[allow(clippy::too_many_arguments)]
+pub fn saver_actor_losses(
+    pcpn: &Pcpn,
+    obs: &Tensor,
+    mu: &Tensor,
+    log_std: &Tensor,
+    state_delta: &Tensor,
+    advantage: &Tensor,
+    tau: &Tensor,
+    cos: &Tensor,
+    cfg: &SaverConfig,
+) -> Result<SaverLosses> {
+    let k = tau.dim(2)?;
+    let x = Tensor::cat(&[obs, mu, log_std], 1)?; // [B, I]
+    let q = pcpn.forward(&x, cos)?; // [d, B, K]
+    let target = state_delta.t()?.unsqueeze(2)?; // [d, B, 1]
+    let adv = advantage.t()?.unsqueeze(2)?; // [d, B, 1]
+    let delta = target.broadcast_sub(&q)?;
+    let rho = quantile_loss(&delta, tau, cfg.kappa)?;
+    let actor = rho.broadcast_mul(&adv)?.mean_all()?;
+    let mon = (monotonic_penalty(&q, tau)?.mean_all()? * (cfg.lambda_mon * 2.0 * k as f64))?;
+    Ok(SaverLosses { actor, mon })
+}
+
+impl Saver {
+    /// A fresh agent and critic initialised from the run seed, around a frozen PCPN.
+    pub fn new(config: &RunConfig, pcpn: Pcpn, dev: &Device) -> Result<Self> {
+        let layout = config.env.layout();
+        let mut rng = rng_for(config.seed, streams::INIT);
+        let agent = Agent::new(&layout, false, &mut rng, dev)?;
+        let critic = Critic::new(&layout, &mut rng, dev)?;
+        let mut vars = agent.params().vars.clone();
+        vars.extend(critic.params().vars.clone());
+        let opt = Optimizer::new(vars, config.optimizer, config.lr)?;
+        Ok(Self {
+            agent,
+            critic,
+            pcpn,
+            opt,
+            rng: rng_for(config.seed, streams::LEARNER),
+            layout,
+            gamma: config.gamma as f32,
+            cfg: config.saver,
+            dev: dev.clone(),
+        })
+    }
+
+    /// The frozen PCPN.
+    pub fn pcpn(&self) -> &Pcpn {
+        &self.pcpn
+    }
+}
+
+impl Algorithm for Saver {
+    fn stat_names(&self) -> &'static [&'static str] {
+        STATS
+    }
+
+    fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let (b, t, o, d) = (
+            batch.len(),
+            batch.n_traj,
+            self.layout.obs_dim,
+            self.layout.aligned_dim,
+        );
+        let k = self.cfg.quantiles;
+        let obs_all = Tensor::cat(
+            &[
+                &matrix(&batch.obs, b, o, &self.dev)?,
+                &matrix(&batch.last_obs, t, o, &self.dev)?,
+            ],
+            0,
+        )?;
+        let out = self.agent.forward(&obs_all)?;
+        // The critic sees the policy's outputs as constants: its loss trains it alone.
+        let x_all = Tensor::cat(&[&obs_all, &out.mu, &out.log_std], 1)?.detach();
+        let v_all = self.critic.forward(&x_all)?; // [B+T, d]
+        let value = v_all.narrow(0, 0, b)?;
+        let bootstrap = v_all.narrow(0, b, t)?.flatten_all()?.to_vec1::<f32>()?;
+        let returns = n_step_returns(
+            &batch.vector_reward,
+            &batch.done,
+            &bootstrap,
+            batch.n_steps,
+            d,
+            self.gamma,
+        );
+        let returns = Tensor::from_vec(returns, (b, d), &self.dev)?;
+        let advantage = (&returns - &value)?.detach();
+        let critic_loss = ((value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
+
+        let taus = uniform01(&mut self.rng, d * b * k);
+        let (tau, cos) = tau_tensors(&taus, d, b, k, &self.dev)?;
+        let mu = out.mu.narrow(0, 0, b)?;
+        let log_std = out.log_std.narrow(0, 0, b)?;
+        let losses = saver_actor_losses(
+            &self.pcpn,
+            &obs_all.narrow(0, 0, b)?,
+            &mu,
+            &log_std,
+            &matrix(&batch.state_delta, b, d, &self.dev)?,
+            &advantage,
+            &tau,
+            &cos,
+            &self.cfg,
+        )?;
+        let loss = ((&losses.actor + &losses.mon)? + &critic_loss)?;
+        let grads = loss.backward()?;
+        self.opt.step(&grads)?;
+        let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
+        Ok(UpdateStats {
+            values: vec![
+                check_finite("actor_loss", losses.actor.to_scalar::<f32>()?)?,
+                check_finite("mon_loss", losses.mon.to_scalar::<f32>()?)?,
+                check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
+                mu_abs_max,
+                log_std_mean,
+            ],
+        })
+    }
+
+    fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
+        checkpoint::to_named_all(&self.agent.params().tensors())
+    }
+
+    fn state_tensors(&self) -> Vec<(String, Tensor)> {
+        let mut t = self.agent.params().tensors();
+        t.extend(self.critic.params().tensors());
+        t.extend(self.opt.slots());
+        t
+    }
+
+    fn optimizer_steps(&self) -> u64 {
+        self.opt.steps()
+    }
+
+    fn load_state(&mut self, get: &dyn Fn(&str) -> Option<Tensor>, steps: u64) -> Result<()> {
+        self.agent.params().load(get)?;
+        self.critic.params().load(get)?;
+        self.opt.restore(get, steps)
+    }
+}

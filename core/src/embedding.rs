@@ -1,0 +1,59 @@
+//! Cosine embedding of a quantile target: e_i(τ) = cos(π·i·τ), i = 1..=n (n = 128).
+//!
+//! Computed with the Chebyshev recurrence cos(i·x) = 2·cos(x)·cos((i-1)·x) − cos((i-2)·x)
+//! in f64 (one `cos` per τ instead of n), then rounded to f32.
+
+/// Embedding width of the PCPN (SPEC.md: 128).
+pub const EMBED_DIM: usize = 128;
+
+/// Writes cos(π·i·τ) for i = 1..=out.len() into `out`.
+pub fn cosine_embedding_into(tau: f32, out: &mut [f32]) {
+    let c1 = (std::f64::consts::PI * tau as f64).cos();
+    let (mut prev, mut cur) = (1.0f64, c1); // cos(0·x), cos(1·x)
+    for o in out.iter_mut() {
+        *o = cur as f32;
+        let next = 2.0 * c1 * cur - prev;
+        prev = cur;
+        cur = next;
+    }
+}
+
+/// The embedding of every τ: [taus.len(), width], row-major.
+pub fn cosine_embedding(taus: &[f32], width: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; taus.len() * width];
+    for (row, &tau) in out.chunks_exact_mut(width).zip(taus) {
+        cosine_embedding_into(tau, row);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn matches_direct_cosines() {
+        // τ = 0.25: cos(π/4) = 0.70710678, cos(π/2) = 0, cos(3π/4) = −0.70710678,
+        // cos(π) = −1, cos(5π/4) = −0.70710678 (by hand from the unit circle).
+        let e = cosine_embedding(&[0.25], 5);
+        let want = [0.707_106_77, 0.0, -0.707_106_77, -1.0, -0.707_106_77];
+        for (g, w) in e.iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "{e:?}");
+        }
+        // τ = 0 gives all ones; τ = 1 alternates −1, +1 (cos(iπ) = (−1)^i).
+        assert!(cosine_embedding(&[0.0], 4).iter().all(|&x| x == 1.0));
+        assert_eq!(cosine_embedding(&[1.0], 4), vec![-1.0, 1.0, -1.0, 1.0]);
+    }
+
+    #[test]
+    fn recurrence_stays_accurate_to_128() {
+        // Against f64 `cos` for every i up to 128 at awkward τ values.
+        for &tau in &[0.013f32, 0.37, 0.5, 0.918, 0.999] {
+            let e = cosine_embedding(&[tau], EMBED_DIM);
+            for (i, &g) in e.iter().enumerate() {
+                let w = (std::f64::consts::PI * (i + 1) as f64 * tau as f64).cos();
+                assert!((g as f64 - w).abs() < 1e-6, "tau {tau} i {}", i + 1);
+            }
+        }
+    }
+}

@@ -1,0 +1,226 @@
+//! Environments with state aligned vector rewards (SPEC.md, "Environments").
+//!
+//! An environment is described on the wire as data ([`EnvLayout`]: observation size,
+//! continuous action dims, an optional categorical choice, which observation entries are
+//! the state-aligned part); the paper's three envs are presets ([`EnvSpec`]) of it.
+//! Vector reward `r = |p - g| - |p' - g|` element-wise; the scalar reward is its sum.
+
+mod angle;
+mod arm;
+mod select;
+
+pub use angle::Angle;
+pub use arm::{hand, wrap_angle, Arm};
+pub use select::Select;
+
+use crate::rng::SaverRng;
+use crate::{CoreError, Result};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// Success radius: every aligned coordinate strictly within this of the goal.
+pub const SUCCESS_RADIUS: f32 = 0.1;
+
+/// The paper's environment presets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EnvKind {
+    /// Pairwise (step, angle) moves in a d-cube, d even (paper Fig. 3).
+    Angle,
+    /// Choose one dimension and a step in a d-cube (paper Fig. 4).
+    Select,
+    /// Two-joint robot arm reaching a goal (paper Fig. 5).
+    Arm,
+}
+
+impl EnvKind {
+    /// Parses `angle`, `select` or `arm`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "angle" => Ok(Self::Angle),
+            "select" => Ok(Self::Select),
+            "arm" => Ok(Self::Arm),
+            other => Err(CoreError::Config(format!(
+                "env: unknown environment {other:?} (expected angle, select or arm)"
+            ))),
+        }
+    }
+
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Angle => "angle",
+            Self::Select => "select",
+            Self::Arm => "arm",
+        }
+    }
+}
+
+/// Which environment and its dimension: the identity of the dynamics that a PCPN models.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct EnvSpec {
+    /// The preset.
+    pub kind: EnvKind,
+    /// Number of state-aligned dimensions d (always 2 for the arm).
+    pub dim: usize,
+}
+
+impl fmt::Display for EnvSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}-d{}", self.kind.name(), self.dim)
+    }
+}
+
+impl EnvSpec {
+    /// Validates the dimension for the kind.
+    pub fn new(kind: EnvKind, dim: usize) -> Result<Self> {
+        match kind {
+            EnvKind::Angle if dim == 0 || dim % 2 != 0 => Err(CoreError::Config(format!(
+                "dim: angle needs an even dimension >= 2, got {dim}"
+            ))),
+            EnvKind::Select if dim == 0 => Err(CoreError::Config(
+                "dim: select needs a dimension >= 1, got 0".into(),
+            )),
+            EnvKind::Arm if dim != 2 => Err(CoreError::Config(format!(
+                "dim: the arm's hand moves in 2 dimensions, got dim {dim}"
+            ))),
+            _ if dim > 1024 => Err(CoreError::Config(format!(
+                "dim: {dim} is larger than the supported 1024"
+            ))),
+            _ => Ok(Self { kind, dim }),
+        }
+    }
+
+    /// The data layout of this preset.
+    pub fn layout(&self) -> EnvLayout {
+        let d = self.dim;
+        match self.kind {
+            EnvKind::Angle => EnvLayout {
+                obs_dim: d,
+                continuous: d,
+                choices: 0,
+                aligned_start: 0,
+                aligned_dim: d,
+            },
+            EnvKind::Select => EnvLayout {
+                obs_dim: d,
+                continuous: 1,
+                choices: d,
+                aligned_start: 0,
+                aligned_dim: d,
+            },
+            EnvKind::Arm => EnvLayout {
+                obs_dim: 6,
+                continuous: 2,
+                choices: 0,
+                aligned_start: 4,
+                aligned_dim: 2,
+            },
+        }
+    }
+
+    /// A fresh environment instance with the default goal.
+    pub fn make(&self, max_steps: u32) -> Box<dyn Env> {
+        match self.kind {
+            EnvKind::Angle => Box::new(Angle::new(self.dim, max_steps)),
+            EnvKind::Select => Box::new(Select::new(self.dim, max_steps)),
+            EnvKind::Arm => Box::new(Arm::new(max_steps)),
+        }
+    }
+}
+
+/// An environment described as data, so that any actor can speak it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct EnvLayout {
+    /// Observation length.
+    pub obs_dim: usize,
+    /// Gaussian action dims: the agent outputs one mean and one log-std per dim.
+    pub continuous: usize,
+    /// Size of the categorical choice (0: none). The agent outputs that many logits.
+    pub choices: usize,
+    /// First observation entry of the state-aligned part.
+    pub aligned_start: usize,
+    /// d: number of state-aligned entries (and of vector reward components).
+    pub aligned_dim: usize,
+}
+
+impl EnvLayout {
+    /// Length of the agent's mean output: continuous means, then the choice logits.
+    pub fn mu_dim(&self) -> usize {
+        self.continuous + self.choices
+    }
+    /// Length of the trainable log-std vector.
+    pub fn log_std_dim(&self) -> usize {
+        self.continuous
+    }
+    /// Length of a stored action: continuous values then a one-hot of the choice.
+    pub fn action_dim(&self) -> usize {
+        self.continuous + self.choices
+    }
+    /// Input width of the PCPN and of the vector critic: [obs, mu, log sigma].
+    pub fn pcpn_input_dim(&self) -> usize {
+        self.obs_dim + self.mu_dim() + self.log_std_dim()
+    }
+}
+
+/// The result of one environment step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Step {
+    /// Change of the state-aligned part, p' - p (before any reset).
+    pub state_delta: Vec<f32>,
+    /// Vector reward |p - g| - |p' - g|, one component per aligned dim.
+    pub vector_reward: Vec<f32>,
+    /// The goal was reached on this step (strict L-infinity < 0.1).
+    pub success: bool,
+    /// The step limit was hit on this step without success.
+    pub timeout: bool,
+}
+
+impl Step {
+    /// The episode ended on this step (success or timeout).
+    pub fn done(&self) -> bool {
+        self.success || self.timeout
+    }
+}
+
+/// An environment instance. Actions are clipped to [-1, 1] inside `step`.
+pub trait Env: Send {
+    /// The layout of observations and actions.
+    fn layout(&self) -> EnvLayout;
+    /// Starts an episode; writes the first observation.
+    fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]);
+    /// Applies `action` (layout: continuous values, then a one-hot of the choice);
+    /// writes the next observation (not reset on `done`: the caller resets).
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
+    /// Steps taken in the current episode.
+    fn steps(&self) -> u32;
+}
+
+/// Shared bookkeeping of the cube environments and the arm: the vector reward, strict
+/// success and the step limit, from the aligned state before and after a step.
+pub(crate) fn finish_step(
+    before: &[f32],
+    after: &[f32],
+    goal: &[f32],
+    steps: u32,
+    max_steps: u32,
+) -> Step {
+    let mut state_delta = Vec::with_capacity(after.len());
+    let mut vector_reward = Vec::with_capacity(after.len());
+    let mut worst = 0.0f32;
+    for ((&p, &q), &g) in before.iter().zip(after).zip(goal) {
+        state_delta.push(q - p);
+        vector_reward.push((p - g).abs() - (q - g).abs());
+        worst = worst.max((q - g).abs());
+    }
+    let success = worst < SUCCESS_RADIUS;
+    Step {
+        state_delta,
+        vector_reward,
+        success,
+        timeout: !success && steps >= max_steps,
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,23 @@
+//! saver-core: the algorithm of SPEC.md with no networking in it.
+//!
+//! Environments with state aligned vector rewards, the agent / A2C head / PCPN /
+//! vector critic networks, the quantile and monotonic losses, n-step returns, TF1
+//! RMSProp, PCPN pretraining and the SAVER and A2C updates. The learner, the actors and
+//! the pcpn-trainer are built from these pieces; none of them does loss maths itself.
+
+pub mod algo;
+pub mod checkpoint;
+pub mod config;
+pub mod embedding;
+pub mod env;
+pub mod error;
+pub mod link;
+pub mod loss;
+pub mod nets;
+pub mod optim;
+pub mod pretrain;
+pub mod returns;
+pub mod rng;
+pub mod rollout;
+
+pub use error::{CoreError, Result};

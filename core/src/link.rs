@@ -1,0 +1,67 @@
+//! The narrow interface between an actor and a learner. Everything an actor needs:
+//! register, get weights of at least some version, hand over a rollout. The embedded
+//! run implements it in-process; the gRPC client implements it over the network.
+
+use crate::config::RunConfig;
+use crate::rollout::Rollout;
+use saver_proto::NamedTensor;
+use std::sync::Arc;
+
+/// What an actor says about itself when it registers.
+#[derive(Clone, Debug)]
+pub struct Registration {
+    /// Human-readable name (host, pid) for logs.
+    pub name: String,
+    /// Random per actor process: tells a restarted actor from a delayed one.
+    pub session: u64,
+    /// How many env instances this actor steps per rollout.
+    pub n_envs: u32,
+}
+
+/// What the learner answers.
+#[derive(Clone, Debug)]
+pub struct Assignment {
+    /// Dense id; sync batches are ordered by it and actor seeds derive from it.
+    pub actor_id: u32,
+    /// The run's validated config (env, algorithm, rollout length, seed).
+    pub config: RunConfig,
+    /// Hash of the config, so both sides can tell they agree.
+    pub config_hash: String,
+}
+
+/// One published version of the agent's weights, shared (never copied) by all readers.
+#[derive(Debug)]
+pub struct PolicyWeights {
+    /// Number of updates behind these weights.
+    pub version: u64,
+    /// The agent's tensors (`agent.*`).
+    pub tensors: Vec<NamedTensor>,
+}
+
+impl PolicyWeights {
+    /// The tensor named `name`.
+    pub fn get(&self, name: &str) -> Option<&NamedTensor> {
+        self.tensors.iter().find(|t| t.name == name)
+    }
+}
+
+/// Why a link call failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    /// The learner is gone or shutting down: the actor should stop (or reconnect).
+    #[error("learner closed: {0}")]
+    Closed(String),
+    /// The learner refused this request; the message says why.
+    #[error("rejected by the learner: {0}")]
+    Rejected(String),
+}
+
+/// The actor side of the actor–learner interface.
+pub trait LearnerLink: Send {
+    /// Registers and learns the actor id and run config.
+    fn register(&mut self, reg: &Registration) -> Result<Assignment, LinkError>;
+    /// Blocks until weights of at least `min_version` exist; returns the newest.
+    fn weights(&mut self, min_version: u64) -> Result<Arc<PolicyWeights>, LinkError>;
+    /// Hands a rollout to the learner.
+    fn push(&mut self, rollout: Rollout) -> Result<(), LinkError>;
+}

@@ -1,0 +1,89 @@
+//! The agent: obs → 256 → 128 → 64 → linear μ, a state-independent trainable log σ
+//! (initialised to −1), and for A2C a value head 64 → 1 on the shared trunk.
+
+use super::{mlp_forward, Linear, ParamSet, TRUNK};
+use crate::env::EnvLayout;
+use crate::rng::SaverRng;
+use crate::Result;
+use candle_core::{Device, Tensor};
+
+/// Initial log-std of every continuous action dim.
+pub const LOG_STD_INIT: f32 = -1.0;
+
+/// The agent network (and, for A2C, its value head).
+pub struct Agent {
+    /// obs → 256 → 128 → 64, ReLU after each.
+    trunk: Vec<Linear>,
+    /// 64 → μ (continuous means, then choice logits).
+    mu: Linear,
+    /// [continuous]: log σ, shared by all states.
+    log_std: Tensor,
+    /// 64 → 1, A2C only.
+    value: Option<Linear>,
+    /// Trainable variables, named `agent.*`.
+    params: ParamSet,
+}
+
+/// The agent's outputs for a batch of observations.
+pub struct AgentOut {
+    /// [N, mu_dim].
+    pub mu: Tensor,
+    /// [N, log_std_dim] (the same row repeated).
+    pub log_std: Tensor,
+    /// [N] value estimates (A2C only).
+    pub value: Option<Tensor>,
+}
+
+impl Agent {
+    /// A freshly initialised agent; `with_value` adds the A2C value head.
+    pub fn new(
+        layout: &EnvLayout,
+        with_value: bool,
+        rng: &mut SaverRng,
+        dev: &Device,
+    ) -> Result<Self> {
+        let mut params = ParamSet::default();
+        let mut trunk = Vec::new();
+        let mut fan_in = layout.obs_dim;
+        for (i, &h) in TRUNK.iter().enumerate() {
+            trunk.push(params.linear(&format!("agent.l{i}"), fan_in, h, rng, dev)?);
+            fan_in = h;
+        }
+        let mu = params.linear("agent.mu", fan_in, layout.mu_dim(), rng, dev)?;
+        let n = layout.log_std_dim();
+        let log_std = params.var("agent.log_std", vec![LOG_STD_INIT; n], &[n], dev)?;
+        let value = if with_value {
+            Some(params.linear("agent.value", fan_in, 1, rng, dev)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            trunk,
+            mu,
+            log_std,
+            value,
+            params,
+        })
+    }
+
+    /// obs [N, obs_dim] → μ, log σ and (A2C) V.
+    pub fn forward(&self, obs: &Tensor) -> candle_core::Result<AgentOut> {
+        let n = obs.dim(0)?;
+        let h = mlp_forward(&self.trunk, obs, true)?;
+        let mu = self.mu.forward(&h)?;
+        let log_std = self
+            .log_std
+            .unsqueeze(0)?
+            .broadcast_as((n, self.log_std.dim(0)?))?;
+        let value = match &self.value {
+            Some(v) => Some(v.forward(&h)?.squeeze(1)?),
+            None => None,
+        };
+        Ok(AgentOut { mu, log_std, value })
+    }
+
+    /// The trainable variables.
+    pub fn params(&self) -> &ParamSet {
+        &self.params
+    }
+}

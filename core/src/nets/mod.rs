@@ -1,0 +1,119 @@
+//! Networks of SPEC.md, "Networks": ReLU MLPs with Glorot-uniform weights and zero
+//! biases drawn from our seeded RNG. Weights are stored [in, out] so a layer is x·W + b.
+
+mod agent;
+mod critic;
+mod pcpn;
+mod policy;
+
+pub use agent::{Agent, AgentOut};
+pub use critic::Critic;
+pub use pcpn::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
+pub use policy::{sample_softmax as sample_softmax_pub, Action, Policy};
+
+use crate::rng::{glorot_uniform, SaverRng};
+use crate::{CoreError, Result};
+use candle_core::{Device, Tensor, Var};
+
+/// Hidden sizes of the agent trunk and of the critic (SPEC.md).
+pub const TRUNK: [usize; 3] = [256, 128, 64];
+
+/// A dense layer y = x·W + b over plain tensors (frozen) or variables (trainable).
+#[derive(Clone, Debug)]
+pub struct Linear {
+    /// [in, out].
+    pub w: Tensor,
+    /// [out].
+    pub b: Tensor,
+}
+
+impl Linear {
+    /// x [N, in] → [N, out].
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        x.matmul(&self.w)?.broadcast_add(&self.b)
+    }
+}
+
+/// Named trainable variables, in creation order: what the optimiser trains and what a
+/// checkpoint stores.
+#[derive(Clone, Default)]
+pub struct ParamSet {
+    /// (name, variable).
+    pub vars: Vec<(String, Var)>,
+}
+
+impl ParamSet {
+    /// A Glorot-uniform [fan_in, fan_out] weight and a zero bias named `{name}.w`, `{name}.b`.
+    pub fn linear(
+        &mut self,
+        name: &str,
+        fan_in: usize,
+        fan_out: usize,
+        rng: &mut SaverRng,
+        dev: &Device,
+    ) -> Result<Linear> {
+        let w = self.var(
+            &format!("{name}.w"),
+            glorot_uniform(rng, fan_in, fan_out),
+            &[fan_in, fan_out],
+            dev,
+        )?;
+        let b = self.var(&format!("{name}.b"), vec![0.0; fan_out], &[fan_out], dev)?;
+        Ok(Linear { w, b })
+    }
+
+    /// Adds a variable with the given values; returns its tensor (same storage).
+    pub fn var(
+        &mut self,
+        name: &str,
+        values: Vec<f32>,
+        shape: &[usize],
+        dev: &Device,
+    ) -> Result<Tensor> {
+        let v = Var::from_vec(values, shape, dev)?;
+        let t = v.as_tensor().clone();
+        self.vars.push((name.to_string(), v));
+        Ok(t)
+    }
+
+    /// The variables' current values as plain named tensors.
+    pub fn tensors(&self) -> Vec<(String, Tensor)> {
+        self.vars
+            .iter()
+            .map(|(n, v)| (n.clone(), v.as_detached_tensor()))
+            .collect()
+    }
+
+    /// Overwrites every variable from `get` (shapes must match).
+    pub fn load(&self, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<()> {
+        for (name, var) in &self.vars {
+            let t =
+                get(name).ok_or_else(|| CoreError::Checkpoint(format!("missing tensor {name}")))?;
+            if t.dims() != var.dims() {
+                return Err(CoreError::Checkpoint(format!(
+                    "tensor {name} has shape {:?}, expected {:?}",
+                    t.dims(),
+                    var.dims()
+                )));
+            }
+            var.set(&t.to_device(var.device())?)?;
+        }
+        Ok(())
+    }
+}
+
+/// A ReLU MLP: every layer but the last is followed by ReLU.
+pub(crate) fn mlp_forward(
+    layers: &[Linear],
+    x: &Tensor,
+    relu_last: bool,
+) -> candle_core::Result<Tensor> {
+    let mut h = x.clone();
+    for (i, l) in layers.iter().enumerate() {
+        h = l.forward(&h)?;
+        if relu_last || i + 1 < layers.len() {
+            h = h.relu()?;
+        }
+    }
+    Ok(h)
+}

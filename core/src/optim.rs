@@ -1,0 +1,266 @@
+//! Optimisers, written out so their semantics are exact and checkpointable.
+//!
+//! RMSProp with TensorFlow-1 semantics (the paper's): ms initialised to 1.0,
+//! `ms ← ms + (g² − ms)·(1 − ρ)`, `θ ← θ − lr·g/√(ms + ε)`, ρ = 0.9, ε = 1e-10, no momentum.
+//! Adam with TensorFlow-1 semantics: `lr_t = lr·√(1 − β2^t)/(1 − β1^t)`,
+//! `θ ← θ − lr_t·m/(√v + ε̂)`.
+
+use crate::{CoreError, Result};
+use candle_core::{backprop::GradStore, Tensor, Var};
+use serde::{Deserialize, Serialize};
+
+/// Which optimiser, with its constants.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum OptimizerConfig {
+    /// TF1 RMSProp (the paper's).
+    Rmsprop {
+        /// Decay ρ of the mean square.
+        decay: f64,
+        /// ε inside the square root.
+        eps: f64,
+        /// Initial value of the mean square slots (TF1: 1.0).
+        init: f64,
+    },
+    /// TF1 Adam.
+    Adam {
+        /// β1.
+        beta1: f64,
+        /// β2.
+        beta2: f64,
+        /// ε̂.
+        eps: f64,
+    },
+}
+
+impl OptimizerConfig {
+    /// TF1 RMSProp defaults (SPEC.md).
+    pub const RMSPROP_TF1: Self = Self::Rmsprop {
+        decay: 0.9,
+        eps: 1e-10,
+        init: 1.0,
+    };
+    /// TF1 Adam defaults.
+    pub const ADAM_TF1: Self = Self::Adam {
+        beta1: 0.9,
+        beta2: 0.999,
+        eps: 1e-8,
+    };
+
+    /// Checks the constants.
+    pub fn validate(&self) -> Result<()> {
+        let ok = match *self {
+            Self::Rmsprop { decay, eps, init } => {
+                (0.0..1.0).contains(&decay) && eps > 0.0 && init >= 0.0
+            }
+            Self::Adam { beta1, beta2, eps } => {
+                (0.0..1.0).contains(&beta1) && (0.0..1.0).contains(&beta2) && eps > 0.0
+            }
+        };
+        if ok {
+            Ok(())
+        } else {
+            Err(CoreError::Config(format!(
+                "optimizer: constants out of range in {self:?}"
+            )))
+        }
+    }
+}
+
+/// An optimiser over a named set of variables, with named slots for checkpoints.
+pub struct Optimizer {
+    /// The variables it trains, in a fixed order.
+    vars: Vec<(String, Var)>,
+    /// First slot per variable: ms (RMSProp) or m (Adam).
+    slot1: Vec<Tensor>,
+    /// Second slot per variable: v (Adam); empty for RMSProp.
+    slot2: Vec<Tensor>,
+    /// Constants.
+    config: OptimizerConfig,
+    /// Learning rate.
+    lr: f64,
+    /// Steps taken (Adam's bias correction; also checkpointed).
+    t: u64,
+}
+
+impl Optimizer {
+    /// A fresh optimiser; slots start at their initial values.
+    pub fn new(vars: Vec<(String, Var)>, config: OptimizerConfig, lr: f64) -> Result<Self> {
+        let mut slot1 = Vec::with_capacity(vars.len());
+        let mut slot2 = Vec::new();
+        for (_, v) in &vars {
+            match config {
+                OptimizerConfig::Rmsprop { init, .. } => {
+                    slot1.push((v.as_tensor().ones_like()? * init)?)
+                }
+                OptimizerConfig::Adam { .. } => {
+                    slot1.push(v.as_tensor().zeros_like()?);
+                    slot2.push(v.as_tensor().zeros_like()?);
+                }
+            }
+        }
+        Ok(Self {
+            vars,
+            slot1,
+            slot2,
+            config,
+            lr,
+            t: 0,
+        })
+    }
+
+    /// Steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.t
+    }
+
+    /// Applies one step with the gradients in `grads`; variables without a gradient
+    /// are left alone (their slots too).
+    pub fn step(&mut self, grads: &GradStore) -> Result<()> {
+        self.t += 1;
+        for i in 0..self.vars.len() {
+            let var = &self.vars[i].1;
+            let Some(g) = grads.get(var.as_tensor()) else {
+                continue;
+            };
+            match self.config {
+                OptimizerConfig::Rmsprop { decay, eps, .. } => {
+                    // TF1 ApplyRMSProp: ms += (g² − ms)·(1 − ρ); var −= lr·g/√(ms + ε).
+                    let one_minus = 1.0f32 - decay as f32;
+                    let ms = &self.slot1[i];
+                    let ms = (ms + ((g.sqr()? - ms)? * one_minus as f64)?)?;
+                    let step = ((g * self.lr)? / (&ms + eps)?.sqrt()?)?;
+                    var.set(&(var.as_tensor() - step)?)?;
+                    self.slot1[i] = ms;
+                }
+                OptimizerConfig::Adam { beta1, beta2, eps } => {
+                    let t = self.t as i32;
+                    let lr_t = self.lr * (1.0 - beta2.powi(t)).sqrt() / (1.0 - beta1.powi(t));
+                    let m = ((&self.slot1[i] * beta1)? + (g * (1.0 - beta1))?)?;
+                    let v = ((&self.slot2[i] * beta2)? + (g.sqr()? * (1.0 - beta2))?)?;
+                    let step = ((&m * lr_t)? / (v.sqrt()? + eps)?)?;
+                    var.set(&(var.as_tensor() - step)?)?;
+                    self.slot1[i] = m;
+                    self.slot2[i] = v;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The slots as named tensors (`opt.<slot>.<var>`), for checkpoints.
+    pub fn slots(&self) -> Vec<(String, Tensor)> {
+        let (n1, n2) = self.slot_names();
+        let mut out = Vec::new();
+        for (i, (name, _)) in self.vars.iter().enumerate() {
+            out.push((format!("opt.{n1}.{name}"), self.slot1[i].clone()));
+            if let Some(s) = self.slot2.get(i) {
+                out.push((format!("opt.{n2}.{name}"), s.clone()));
+            }
+        }
+        out
+    }
+
+    /// Restores slots and the step count saved by [`Optimizer::slots`].
+    pub fn restore(&mut self, get: &dyn Fn(&str) -> Option<Tensor>, t: u64) -> Result<()> {
+        let (n1, n2) = self.slot_names();
+        for (i, (name, var)) in self.vars.iter().enumerate() {
+            let load = |slot: &str| -> Result<Tensor> {
+                let key = format!("opt.{slot}.{name}");
+                let s = get(&key)
+                    .ok_or_else(|| CoreError::Checkpoint(format!("missing tensor {key}")))?;
+                if s.dims() != var.dims() {
+                    return Err(CoreError::Checkpoint(format!(
+                        "{key} has shape {:?}, expected {:?}",
+                        s.dims(),
+                        var.dims()
+                    )));
+                }
+                Ok(s)
+            };
+            self.slot1[i] = load(n1)?;
+            if i < self.slot2.len() {
+                self.slot2[i] = load(n2)?;
+            }
+        }
+        self.t = t;
+        Ok(())
+    }
+
+    fn slot_names(&self) -> (&'static str, &'static str) {
+        match self.config {
+            OptimizerConfig::Rmsprop { .. } => ("ms", ""),
+            OptimizerConfig::Adam { .. } => ("m", "v"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::Device;
+
+    #[test]
+    fn rmsprop_two_tf1_steps_by_hand() {
+        // θ0 = 1, lr = 0.01, ρ = 0.9, ε = 1e-10, ms0 = 1, loss = 3·θ so g = 3 at every step:
+        //   step 1: ms1 = 1 + (9 − 1)·0.1 = 1.8;   θ1 = 1 − 0.01·3/√1.8 = 0.977639320
+        //   step 2: ms2 = 1.8 + (9 − 1.8)·0.1 = 2.52; θ2 = θ1 − 0.03/√2.52 = 0.958740717
+        // (python: 1 - 0.03/1.8**0.5 - 0.03/2.52**0.5)
+        let v = Var::from_slice(&[1f32], 1, &Device::Cpu).unwrap();
+        let mut opt = Optimizer::new(
+            vec![("w".into(), v.clone())],
+            OptimizerConfig::RMSPROP_TF1,
+            0.01,
+        )
+        .unwrap();
+        let mut seen = vec![];
+        for _ in 0..2 {
+            let loss = (v.as_tensor() * 3.0).unwrap().sum_all().unwrap();
+            opt.step(&loss.backward().unwrap()).unwrap();
+            seen.push(v.as_tensor().to_vec1::<f32>().unwrap()[0]);
+        }
+        assert!((seen[0] - 0.977_639_3).abs() < 1e-6, "{seen:?}");
+        assert!((seen[1] - 0.958_740_7).abs() < 1e-6, "{seen:?}");
+        let ms = opt.slots()[0].1.to_vec1::<f32>().unwrap()[0];
+        assert!((ms - 2.52).abs() < 1e-5);
+    }
+
+    #[test]
+    fn rmsprop_turns_tiny_gradients_into_sign_like_steps_once_ms_decays() {
+        // The SPEC's observation: with ms → g² (after many steps on g = 1e-4) the step is
+        // lr·g/√(g²+ε) ≈ lr. After 200 steps ms = 1·0.9^200 + g²·(1 − 0.9^200) ≈ 1e-8,
+        // so step 201 moves θ by 0.01·1e-4/√(7.06e-10 + 1e-8 + 1e-10) ≈ 9.63e-3.
+        let v = Var::from_slice(&[0f32], 1, &Device::Cpu).unwrap();
+        let mut opt = Optimizer::new(
+            vec![("w".into(), v.clone())],
+            OptimizerConfig::RMSPROP_TF1,
+            0.01,
+        )
+        .unwrap();
+        let mut before = 0.0;
+        for _ in 0..201 {
+            before = v.as_tensor().to_vec1::<f32>().unwrap()[0];
+            let loss = (v.as_tensor() * 1e-4).unwrap().sum_all().unwrap();
+            opt.step(&loss.backward().unwrap()).unwrap();
+        }
+        let moved = before - v.as_tensor().to_vec1::<f32>().unwrap()[0];
+        assert!((moved - 9.63e-3).abs() < 2e-4, "moved {moved}");
+    }
+
+    #[test]
+    fn adam_first_step_is_lr_sized() {
+        // TF1 Adam, t = 1: m = 0.1·g, v = 0.001·g², lr_t = lr·√0.001/0.1;
+        // step = lr_t·m/(√v + ε) = lr·g/(|g| + ε/√0.001) ≈ lr for g = 3: 0.001·3/(3+3.16e-7).
+        let v = Var::from_slice(&[1f32], 1, &Device::Cpu).unwrap();
+        let mut opt = Optimizer::new(
+            vec![("w".into(), v.clone())],
+            OptimizerConfig::ADAM_TF1,
+            0.001,
+        )
+        .unwrap();
+        let loss = (v.as_tensor() * 3.0).unwrap().sum_all().unwrap();
+        opt.step(&loss.backward().unwrap()).unwrap();
+        let theta = v.as_tensor().to_vec1::<f32>().unwrap()[0];
+        assert!((theta - 0.999).abs() < 1e-6, "{theta}");
+    }
+}

@@ -1,0 +1,197 @@
+//! PCPN pretraining (SPEC.md): i.i.d. samples — obs from the env's reset distribution,
+//! μ ~ U(-1, 1), σ ~ U(0, 1) (log σ = log(U + 1e-10)), one step with a = μ + σ·N(0, 1),
+//! target Δp — and the loss mean_{B·K·d} ρ_τ(Δp − PCPN(x, τ)), fresh batches of 128.
+//!
+//! Pretraining is a function of a [`SampleSource`], not of an env type, so transitions
+//! streamed from a foreign env can feed it the same way.
+
+use crate::algo::saver::tau_tensors;
+use crate::env::{EnvLayout, EnvSpec};
+use crate::loss::quantile_loss;
+use crate::nets::{sample_softmax_pub, ParamSet, Pcpn};
+use crate::optim::{Optimizer, OptimizerConfig};
+use crate::rng::{normal, rng_for, streams, uniform01, SaverRng};
+use crate::{CoreError, Result};
+use candle_core::{Device, Tensor};
+use rand::Rng;
+
+/// A batch of pretraining samples.
+pub struct Samples {
+    /// [n, pcpn_input_dim]: [obs, μ, log σ].
+    pub x: Vec<f32>,
+    /// [n, d]: the observed change of the state-aligned part.
+    pub delta: Vec<f32>,
+    /// n.
+    pub n: usize,
+}
+
+/// Where pretraining samples come from.
+pub trait SampleSource {
+    /// The layout the samples follow.
+    fn layout(&self) -> EnvLayout;
+    /// `n` fresh i.i.d. samples.
+    fn sample(&mut self, n: usize) -> Samples;
+}
+
+/// Samples from one of the built-in environments.
+pub struct EnvSampler {
+    /// The env (reset before every sample).
+    env: Box<dyn crate::env::Env>,
+    /// Sample stream.
+    rng: SaverRng,
+    /// Layout.
+    layout: EnvLayout,
+}
+
+impl EnvSampler {
+    /// A sampler for `spec` with its own stream of `seed`.
+    pub fn new(spec: EnvSpec, seed: u64, stream: u64) -> Self {
+        Self {
+            env: spec.make(u32::MAX),
+            rng: rng_for(seed, stream),
+            layout: spec.layout(),
+        }
+    }
+}
+
+impl SampleSource for EnvSampler {
+    fn layout(&self) -> EnvLayout {
+        self.layout
+    }
+
+    fn sample(&mut self, n: usize) -> Samples {
+        let l = self.layout;
+        let (c, ch) = (l.continuous, l.choices);
+        let mut x = Vec::with_capacity(n * l.pcpn_input_dim());
+        let mut delta = Vec::with_capacity(n * l.aligned_dim);
+        let mut obs = vec![0.0f32; l.obs_dim];
+        let mut next = vec![0.0f32; l.obs_dim];
+        let mut action = vec![0.0f32; l.action_dim()];
+        for _ in 0..n {
+            self.env.reset(&mut self.rng, &mut obs);
+            let mu: Vec<f32> = (0..l.mu_dim())
+                .map(|_| self.rng.random_range(-1.0f32..1.0))
+                .collect();
+            let sigma: Vec<f32> = uniform01(&mut self.rng, l.log_std_dim());
+            for j in 0..c {
+                action[j] = mu[j] + sigma[j] * normal(&mut self.rng);
+            }
+            if ch > 0 {
+                let pick = sample_softmax_pub(&mu[c..], &mut self.rng);
+                for (i, a) in action[c..].iter_mut().enumerate() {
+                    *a = if i == pick { 1.0 } else { 0.0 };
+                }
+            }
+            let step = self.env.step(&action, &mut next);
+            x.extend_from_slice(&obs);
+            x.extend_from_slice(&mu);
+            x.extend(sigma.iter().map(|s| (s + 1e-10).ln()));
+            delta.extend_from_slice(&step.state_delta);
+        }
+        Samples { x, delta, n }
+    }
+}
+
+/// Mean quantile loss of `pcpn` on samples at fresh τ (K copies), as a tensor.
+pub fn pcpn_loss(
+    pcpn: &Pcpn,
+    s: &Samples,
+    k: usize,
+    rng: &mut SaverRng,
+    dev: &Device,
+) -> Result<Tensor> {
+    let d = pcpn.dim();
+    let taus = uniform01(rng, d * s.n * k);
+    let (tau, cos) = tau_tensors(&taus, d, s.n, k, dev)?;
+    let x = Tensor::from_slice(&s.x, (s.n, s.x.len() / s.n), dev)?;
+    let q = pcpn.forward(&x, &cos)?; // [d, B, K]
+    let target = Tensor::from_slice(&s.delta, (s.n, d), dev)?
+        .t()?
+        .unsqueeze(2)?;
+    Ok(quantile_loss(&target.broadcast_sub(&q)?, &tau, None)?.mean_all()?)
+}
+
+/// Pretrains a PCPN step by step.
+pub struct Pretrainer {
+    /// The PCPN being trained (built on variables).
+    pcpn: Pcpn,
+    /// Its optimiser.
+    opt: Optimizer,
+    /// Training samples.
+    source: Box<dyn SampleSource>,
+    /// τ stream.
+    rng: SaverRng,
+    /// Transitions per batch.
+    batch_size: usize,
+    /// K.
+    k: usize,
+    /// Device.
+    dev: Device,
+}
+
+impl Pretrainer {
+    /// A fresh PCPN for `source`'s layout.
+    pub fn new(
+        source: Box<dyn SampleSource>,
+        seed: u64,
+        optimizer: OptimizerConfig,
+        lr: f64,
+        batch_size: usize,
+        k: usize,
+        dev: &Device,
+    ) -> Result<Self> {
+        let mut rng = rng_for(seed, streams::PRETRAIN);
+        let mut params = ParamSet::default();
+        let pcpn = Pcpn::init(&source.layout(), &mut rng, dev, &mut params)?;
+        let opt = Optimizer::new(params.vars, optimizer, lr)?;
+        Ok(Self {
+            pcpn,
+            opt,
+            source,
+            rng,
+            batch_size,
+            k,
+            dev: dev.clone(),
+        })
+    }
+
+    /// One batch of training; returns its loss.
+    pub fn step(&mut self) -> Result<f32> {
+        let s = self.source.sample(self.batch_size);
+        let loss = pcpn_loss(&self.pcpn, &s, self.k, &mut self.rng, &self.dev)?;
+        let v = loss.to_scalar::<f32>()?;
+        if !v.is_finite() {
+            return Err(CoreError::Diverged(format!("PCPN training loss is {v}")));
+        }
+        self.opt.step(&loss.backward()?)?;
+        Ok(v)
+    }
+
+    /// Mean quantile loss on `batches` fresh held-out batches from `held_out`.
+    pub fn evaluate(
+        &self,
+        held_out: &mut dyn SampleSource,
+        batches: usize,
+        seed: u64,
+    ) -> Result<f32> {
+        let mut rng = rng_for(seed, streams::HELD_OUT);
+        let mut total = 0.0;
+        for _ in 0..batches {
+            let s = held_out.sample(self.batch_size);
+            total += pcpn_loss(&self.pcpn, &s, self.k, &mut rng, &self.dev)?.to_scalar::<f32>()?;
+        }
+        Ok(total / batches as f32)
+    }
+
+    /// The trained PCPN as a frozen copy (plain tensors).
+    pub fn frozen(&self) -> Result<Pcpn> {
+        let tensors = self.pcpn.tensors();
+        let layout = self.source.layout();
+        Pcpn::frozen(&layout, &|name| {
+            tensors
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, t)| t.clone())
+        })
+    }
+}

@@ -1,0 +1,184 @@
+//! Rollouts (what an actor ships) and batches (what an update consumes).
+//!
+//! A rollout holds `n_envs` trajectories of `n_steps` steps; every array is row-major
+//! with the env index first. A batch concatenates rollouts in actor-id order.
+
+use crate::env::EnvLayout;
+use crate::{CoreError, Result};
+
+/// An episode that finished inside a rollout.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Episode {
+    /// Actor that ran it.
+    pub actor_id: u32,
+    /// Steps, counting the last one.
+    pub length: u32,
+    /// The goal was reached (not a timeout).
+    pub success: bool,
+    /// Undiscounted scalar return (sum of the vector reward components).
+    pub ret: f32,
+}
+
+/// n steps of E envs from one actor at one policy version.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rollout {
+    /// Actor id from registration.
+    pub actor_id: u32,
+    /// Actor session (per process).
+    pub session: u64,
+    /// Per-actor sequence number, from 0.
+    pub seq: u64,
+    /// Version of the weights that chose the actions.
+    pub policy_version: u64,
+    /// E.
+    pub n_envs: usize,
+    /// n.
+    pub n_steps: usize,
+    /// [E, n+1, obs_dim]: observations o_0..o_n (o_n bootstraps the returns).
+    pub obs: Vec<f32>,
+    /// [E, n, mu_dim]: behaviour μ.
+    pub mu: Vec<f32>,
+    /// [E, n, log_std_dim]: behaviour log σ.
+    pub log_std: Vec<f32>,
+    /// [E, n, action_dim]: sampled actions (unclipped; the choice as a one-hot).
+    pub actions: Vec<f32>,
+    /// [E, n, d]: change of the state-aligned part.
+    pub state_delta: Vec<f32>,
+    /// [E, n, d]: vector rewards.
+    pub vector_reward: Vec<f32>,
+    /// [E, n]: the episode ended at this step (success or timeout).
+    pub done: Vec<bool>,
+    /// Episodes that finished in this rollout.
+    pub episodes: Vec<Episode>,
+}
+
+impl Rollout {
+    /// Checks every array against the layout and that all numbers are finite.
+    pub fn validate(&self, layout: &EnvLayout) -> Result<()> {
+        let (e, n) = (self.n_envs, self.n_steps);
+        if e == 0 || n == 0 {
+            return Err(CoreError::Data(format!(
+                "rollout has {e} envs and {n} steps; both must be >= 1"
+            )));
+        }
+        let arrays: [(&str, &[f32], usize); 6] = [
+            ("obs", &self.obs, e * (n + 1) * layout.obs_dim),
+            ("mu", &self.mu, e * n * layout.mu_dim()),
+            ("log_std", &self.log_std, e * n * layout.log_std_dim()),
+            ("actions", &self.actions, e * n * layout.action_dim()),
+            ("state_delta", &self.state_delta, e * n * layout.aligned_dim),
+            (
+                "vector_reward",
+                &self.vector_reward,
+                e * n * layout.aligned_dim,
+            ),
+        ];
+        for (name, data, want) in arrays {
+            if data.len() != want {
+                return Err(CoreError::Data(format!(
+                    "rollout {name} has {} values, expected {want} for {e} envs x {n} steps",
+                    data.len()
+                )));
+            }
+            if let Some(i) = data.iter().position(|x| !x.is_finite()) {
+                return Err(CoreError::Data(format!(
+                    "rollout {name}[{i}] is {} (not finite)",
+                    data[i]
+                )));
+            }
+        }
+        if self.done.len() != e * n {
+            return Err(CoreError::Data(format!(
+                "rollout done has {} entries, expected {}",
+                self.done.len(),
+                e * n
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Transitions of several rollouts, trajectory-major, ready for an update.
+#[derive(Clone, Debug)]
+pub struct Batch {
+    /// Number of trajectories T (sum of the rollouts' envs).
+    pub n_traj: usize,
+    /// Steps per trajectory n.
+    pub n_steps: usize,
+    /// [T·n, obs_dim]: o_t.
+    pub obs: Vec<f32>,
+    /// [T, obs_dim]: o_n of each trajectory.
+    pub last_obs: Vec<f32>,
+    /// [T·n, action_dim].
+    pub actions: Vec<f32>,
+    /// [T·n, d].
+    pub state_delta: Vec<f32>,
+    /// [T·n, d].
+    pub vector_reward: Vec<f32>,
+    /// [T·n].
+    pub done: Vec<bool>,
+    /// Total env steps in the batch (T·n).
+    pub steps: u64,
+}
+
+impl Batch {
+    /// Concatenates rollouts in the given order (callers sort by actor id). All must
+    /// have the same n and match `layout` (validate them first).
+    pub fn from_rollouts(rollouts: &[Rollout], layout: &EnvLayout) -> Result<Self> {
+        let Some(first) = rollouts.first() else {
+            return Err(CoreError::Data("a batch needs at least one rollout".into()));
+        };
+        let n = first.n_steps;
+        let o = layout.obs_dim;
+        let mut b = Batch {
+            n_traj: 0,
+            n_steps: n,
+            obs: vec![],
+            last_obs: vec![],
+            actions: vec![],
+            state_delta: vec![],
+            vector_reward: vec![],
+            done: vec![],
+            steps: 0,
+        };
+        for r in rollouts {
+            if r.n_steps != n {
+                return Err(CoreError::Data(format!(
+                    "rollouts of {} and {n} steps cannot share a batch",
+                    r.n_steps
+                )));
+            }
+            for e in 0..r.n_envs {
+                let traj = &r.obs[e * (n + 1) * o..(e + 1) * (n + 1) * o];
+                b.obs.extend_from_slice(&traj[..n * o]);
+                b.last_obs.extend_from_slice(&traj[n * o..]);
+            }
+            b.actions.extend_from_slice(&r.actions);
+            b.state_delta.extend_from_slice(&r.state_delta);
+            b.vector_reward.extend_from_slice(&r.vector_reward);
+            b.done.extend_from_slice(&r.done);
+            b.n_traj += r.n_envs;
+        }
+        b.steps = (b.n_traj * n) as u64;
+        Ok(b)
+    }
+
+    /// Number of transitions B = T·n.
+    pub fn len(&self) -> usize {
+        self.n_traj * self.n_steps
+    }
+
+    /// True when the batch holds no transitions.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The scalar reward of each transition: the sum of its vector reward.
+    pub fn scalar_reward(&self) -> Vec<f32> {
+        let d = self.vector_reward.len() / self.len().max(1);
+        self.vector_reward
+            .chunks_exact(d.max(1))
+            .map(|r| r.iter().sum())
+            .collect()
+    }
+}

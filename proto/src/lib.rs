@@ -1,0 +1,178 @@
+//! saver-proto: what crosses a process boundary. Weights, checkpoints and PCPNs travel
+//! as safetensors bytes (f32, little endian, with a string metadata map), so a client in
+//! any language decodes them with the safetensors package alone.
+
+use sha2::{Digest, Sha256};
+use std::collections::HashMap;
+
+/// A named f32 tensor in row-major order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedTensor {
+    /// Dotted name, e.g. `agent.l0.w`.
+    pub name: String,
+    /// Dimensions.
+    pub shape: Vec<usize>,
+    /// Values, row-major.
+    pub data: Vec<f32>,
+}
+
+impl NamedTensor {
+    /// Number of elements the shape implies.
+    pub fn numel(&self) -> usize {
+        self.shape.iter().product()
+    }
+}
+
+/// Errors of the codec.
+#[derive(Debug, thiserror::Error)]
+pub enum CodecError {
+    /// The bytes are not a valid safetensors file.
+    #[error("not a valid safetensors payload: {0}")]
+    Safetensors(String),
+    /// A tensor is not f32.
+    #[error("tensor {name} has dtype {dtype}, expected F32")]
+    Dtype {
+        /// Tensor name.
+        name: String,
+        /// Its dtype.
+        dtype: String,
+    },
+    /// A tensor's data length does not match its shape.
+    #[error("tensor {name}: {len} values for shape {shape:?}")]
+    Shape {
+        /// Tensor name.
+        name: String,
+        /// Number of values.
+        len: usize,
+        /// Declared shape.
+        shape: Vec<usize>,
+    },
+}
+
+/// Encodes tensors and metadata as safetensors bytes.
+pub fn encode(
+    tensors: &[NamedTensor],
+    metadata: &HashMap<String, String>,
+) -> Result<Vec<u8>, CodecError> {
+    let mut views = Vec::with_capacity(tensors.len());
+    for t in tensors {
+        if t.data.len() != t.numel() {
+            return Err(CodecError::Shape {
+                name: t.name.clone(),
+                len: t.data.len(),
+                shape: t.shape.clone(),
+            });
+        }
+        let bytes: &[u8] = f32_bytes(&t.data);
+        let view =
+            safetensors::tensor::TensorView::new(safetensors::Dtype::F32, t.shape.clone(), bytes)
+                .map_err(|e| CodecError::Safetensors(e.to_string()))?;
+        views.push((t.name.clone(), view));
+    }
+    let meta = if metadata.is_empty() {
+        None
+    } else {
+        Some(metadata.clone())
+    };
+    safetensors::serialize(views, meta).map_err(|e| CodecError::Safetensors(e.to_string()))
+}
+
+/// Decodes safetensors bytes into tensors (sorted by name) and metadata.
+pub fn decode(bytes: &[u8]) -> Result<(Vec<NamedTensor>, HashMap<String, String>), CodecError> {
+    let st = safetensors::SafeTensors::deserialize(bytes)
+        .map_err(|e| CodecError::Safetensors(e.to_string()))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| CodecError::Safetensors(e.to_string()))?;
+    let metadata = header.metadata().clone().unwrap_or_default();
+    let mut out = Vec::new();
+    let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
+    names.sort();
+    for name in names {
+        let view = st
+            .tensor(&name)
+            .map_err(|e| CodecError::Safetensors(e.to_string()))?;
+        if view.dtype() != safetensors::Dtype::F32 {
+            return Err(CodecError::Dtype {
+                name,
+                dtype: format!("{:?}", view.dtype()),
+            });
+        }
+        let data: Vec<f32> = view
+            .data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        out.push(NamedTensor {
+            name,
+            shape: view.shape().to_vec(),
+            data,
+        });
+    }
+    Ok((out, metadata))
+}
+
+/// Lower-case hex sha256 of bytes.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    let digest = Sha256::digest(bytes);
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn f32_bytes(data: &[f32]) -> &[u8] {
+    // Safetensors is little endian; so is every target we build for.
+    #[cfg(target_endian = "big")]
+    compile_error!("saver-proto assumes a little-endian target");
+    // SAFETY: f32 has no padding and any byte pattern is a valid u8.
+    unsafe { std::slice::from_raw_parts(data.as_ptr().cast::<u8>(), std::mem::size_of_val(data)) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_keeps_values_shapes_and_metadata() {
+        let t = vec![
+            NamedTensor {
+                name: "b".into(),
+                shape: vec![2, 2],
+                data: vec![1.0, -2.5, f32::MIN_POSITIVE, 3.0e7],
+            },
+            NamedTensor {
+                name: "a".into(),
+                shape: vec![1],
+                data: vec![0.125],
+            },
+        ];
+        let meta = HashMap::from([("version".to_string(), "7".to_string())]);
+        let bytes = encode(&t, &meta).unwrap();
+        let (back, m) = decode(&bytes).unwrap();
+        assert_eq!(m["version"], "7");
+        assert_eq!(back.len(), 2);
+        assert_eq!(back[0], t[1]);
+        assert_eq!(back[1], t[0]);
+    }
+
+    #[test]
+    fn garbage_and_mismatched_shapes_are_errors() {
+        assert!(decode(b"not safetensors at all").is_err());
+        assert!(decode(&[255; 8]).is_err());
+        let bad = NamedTensor {
+            name: "x".into(),
+            shape: vec![3],
+            data: vec![1.0],
+        };
+        assert!(matches!(
+            encode(&[bad], &HashMap::new()),
+            Err(CodecError::Shape { .. })
+        ));
+    }
+
+    #[test]
+    fn sha256_of_abc() {
+        // FIPS 180-2 test vector.
+        assert_eq!(
+            sha256_hex(b"abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+    }
+}
