@@ -1,1 +1,52 @@
-fn main() {}
+//! `saver`: one binary for every role of the system. `saver train` runs everything in
+//! one process (the embedded default); `saver pretrain` builds a PCPN; `saver bench`
+//! measures the updates against the machine's matmul peak; `saver plot` draws curves.
+
+use clap::{Parser, Subcommand};
+use saver::{bench, config, plot, pretrain, train};
+use std::process::ExitCode;
+
+/// SAVER: state aligned vector rewards with quantile regression RL.
+#[derive(Parser)]
+#[command(name = "saver", version, about, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train in one process: PCPN (cached or pretrained), learner thread, actors.
+    Train(config::TrainArgs),
+    /// Pretrain a PCPN for an env and store it.
+    Pretrain(pretrain::PretrainArgs),
+    /// Time the updates and a rollout-plus-update cycle against the matmul peak.
+    Bench(bench::BenchArgs),
+    /// Draw learning curves of one or more run folders into a PNG.
+    Plot(plot::PlotArgs),
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    saver::init_process(None);
+    let result = match cli.command {
+        Command::Train(a) => train::run(a),
+        Command::Pretrain(a) => pretrain::run(a),
+        Command::Bench(a) => bench::run(a),
+        Command::Plot(a) => plot::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

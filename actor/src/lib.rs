@@ -1,1 +1,167 @@
+//! saver-actor: steps N env instances with the newest policy and ships rollouts
+//! through a [`LearnerLink`] (in-process or gRPC — the actor does not know which).
 
+use saver_core::config::RunConfig;
+use saver_core::env::{Env, EnvLayout};
+use saver_core::link::{Assignment, LearnerLink, LinkError, Registration};
+use saver_core::nets::{Action, Policy};
+use saver_core::rng::{rng_for, streams, SaverRng};
+use saver_core::rollout::{Episode, Rollout};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Errors of an actor.
+#[derive(Debug, thiserror::Error)]
+pub enum ActorError {
+    /// The link failed (other than a normal close).
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// The published weights do not fit the env.
+    #[error(transparent)]
+    Core(#[from] saver_core::CoreError),
+}
+
+/// What an actor did, for logs and tests.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct ActorSummary {
+    /// Rollouts the learner accepted.
+    pub rollouts: u64,
+    /// Env steps taken.
+    pub steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
+}
+
+/// One actor: its envs, their current observations and episode counters.
+pub struct Actor {
+    /// Id from registration.
+    id: u32,
+    /// Session sent with every rollout.
+    session: u64,
+    /// The envs.
+    envs: Vec<Box<dyn Env>>,
+    /// Current observation per env.
+    obs: Vec<Vec<f32>>,
+    /// Steps and scalar return of the running episode per env.
+    running: Vec<(u32, f32)>,
+    /// Resets and action noise (seed + actor id stream).
+    rng: SaverRng,
+    /// Env layout.
+    layout: EnvLayout,
+    /// Rollout length n.
+    n_steps: usize,
+    /// Next sequence number.
+    seq: u64,
+}
+
+impl Actor {
+    /// An actor for an assignment, with `n_envs` fresh envs reset from its own stream.
+    pub fn new(assignment: &Assignment, session: u64, n_envs: usize) -> Self {
+        let c: &RunConfig = &assignment.config;
+        let layout = c.env.layout();
+        let mut rng = rng_for(c.seed, streams::ACTOR_BASE + assignment.actor_id as u64);
+        let mut envs = Vec::with_capacity(n_envs);
+        let mut obs = Vec::with_capacity(n_envs);
+        for _ in 0..n_envs {
+            let mut env = c.env.make(c.max_episode_steps);
+            let mut o = vec![0.0; layout.obs_dim];
+            env.reset(&mut rng, &mut o);
+            envs.push(env);
+            obs.push(o);
+        }
+        Self {
+            id: assignment.actor_id,
+            session,
+            envs,
+            obs,
+            running: vec![(0, 0.0); n_envs],
+            rng,
+            layout,
+            n_steps: c.rollout as usize,
+            seq: 0,
+        }
+    }
+
+    /// Steps every env n times with `policy`; resets envs whose episode ends.
+    pub fn collect(&mut self, policy: &mut Policy) -> Rollout {
+        let (e, n, l) = (self.envs.len(), self.n_steps, self.layout);
+        let mut r = Rollout {
+            actor_id: self.id,
+            session: self.session,
+            seq: self.seq,
+            policy_version: policy.version(),
+            n_envs: e,
+            n_steps: n,
+            obs: Vec::with_capacity(e * (n + 1) * l.obs_dim),
+            mu: Vec::with_capacity(e * n * l.mu_dim()),
+            log_std: Vec::with_capacity(e * n * l.log_std_dim()),
+            actions: Vec::with_capacity(e * n * l.action_dim()),
+            state_delta: Vec::with_capacity(e * n * l.aligned_dim),
+            vector_reward: Vec::with_capacity(e * n * l.aligned_dim),
+            done: Vec::with_capacity(e * n),
+            episodes: Vec::new(),
+        };
+        self.seq += 1;
+        let mut act = Action::default();
+        // Env-major layout: all n steps of env 0, then env 1, … (envs are independent).
+        for i in 0..e {
+            for _ in 0..n {
+                r.obs.extend_from_slice(&self.obs[i]);
+                policy.act(&self.obs[i], &mut self.rng, &mut act);
+                let step = self.envs[i].step(&act.action, &mut self.obs[i]);
+                r.mu.extend_from_slice(&act.mu);
+                r.log_std.extend_from_slice(&act.log_std);
+                r.actions.extend_from_slice(&act.action);
+                r.state_delta.extend_from_slice(&step.state_delta);
+                r.vector_reward.extend_from_slice(&step.vector_reward);
+                r.done.push(step.done());
+                let run = &mut self.running[i];
+                run.0 += 1;
+                run.1 += step.vector_reward.iter().sum::<f32>();
+                if step.done() {
+                    r.episodes.push(Episode {
+                        actor_id: self.id,
+                        length: run.0,
+                        success: step.success,
+                        ret: run.1,
+                    });
+                    *run = (0, 0.0);
+                    self.envs[i].reset(&mut self.rng, &mut self.obs[i]);
+                }
+            }
+            r.obs.extend_from_slice(&self.obs[i]);
+        }
+        r
+    }
+}
+
+/// Registers through `link` and acts until the learner closes or `stop` is set.
+/// Sync mode: after each rollout the actor waits for the next version.
+pub fn run_actor(
+    link: &mut dyn LearnerLink,
+    reg: &Registration,
+    stop: &AtomicBool,
+) -> Result<ActorSummary, ActorError> {
+    let assignment = link.register(reg)?;
+    let layout = assignment.config.env.layout();
+    let mut actor = Actor::new(&assignment, reg.session, reg.n_envs as usize);
+    let mut summary = ActorSummary::default();
+    let mut want = 0u64;
+    while !stop.load(Ordering::Relaxed) {
+        let weights = match link.weights(want) {
+            Ok(w) => w,
+            Err(LinkError::Closed(_)) => break,
+            Err(e) => return Err(e.into()),
+        };
+        let mut policy = Policy::new(weights, layout)?;
+        let rollout = actor.collect(&mut policy);
+        summary.steps += (rollout.n_envs * rollout.n_steps) as u64;
+        summary.episodes += rollout.episodes.len() as u64;
+        match link.push(rollout) {
+            Ok(()) => summary.rollouts += 1,
+            Err(LinkError::Closed(_)) => break,
+            Err(e) => return Err(e.into()),
+        }
+        want = policy.version() + 1;
+    }
+    Ok(summary)
+}

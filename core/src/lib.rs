@@ -21,3 +21,13 @@ pub mod rng;
 pub mod rollout;
 
 pub use error::{CoreError, Result};
+
+/// The device updates run on: the first CUDA GPU when built with the `cuda` feature and
+/// one is present, else the CPU.
+pub fn device() -> candle_core::Device {
+    #[cfg(feature = "cuda")]
+    if let Ok(d) = candle_core::Device::new_cuda(0) {
+        return d;
+    }
+    candle_core::Device::Cpu
+}

@@ -123,6 +123,9 @@ impl Optimizer {
             let Some(g) = grads.get(var.as_tensor()) else {
                 continue;
             };
+            // Gradients can carry the op graph that produced them; the slots must not
+            // keep it (and the previous slots) alive from step to step.
+            let g = &g.detach();
             match self.config {
                 OptimizerConfig::Rmsprop { decay, eps, .. } => {
                     // TF1 ApplyRMSProp: ms += (g² − ms)·(1 − ρ); var −= lr·g/√(ms + ε).
@@ -131,7 +134,7 @@ impl Optimizer {
                     let ms = (ms + ((g.sqr()? - ms)? * one_minus as f64)?)?;
                     let step = ((g * self.lr)? / (&ms + eps)?.sqrt()?)?;
                     var.set(&(var.as_tensor() - step)?)?;
-                    self.slot1[i] = ms;
+                    self.slot1[i] = ms.detach();
                 }
                 OptimizerConfig::Adam { beta1, beta2, eps } => {
                     let t = self.t as i32;
@@ -140,8 +143,8 @@ impl Optimizer {
                     let v = ((&self.slot2[i] * beta2)? + (g.sqr()? * (1.0 - beta2))?)?;
                     let step = ((&m * lr_t)? / (v.sqrt()? + eps)?)?;
                     var.set(&(var.as_tensor() - step)?)?;
-                    self.slot1[i] = m;
-                    self.slot2[i] = v;
+                    self.slot1[i] = m.detach();
+                    self.slot2[i] = v.detach();
                 }
             }
         }
@@ -223,6 +226,9 @@ mod tests {
         assert!((seen[1] - 0.958_740_7).abs() < 1e-6, "{seen:?}");
         let ms = opt.slots()[0].1.to_vec1::<f32>().unwrap()[0];
         assert!((ms - 2.52).abs() < 1e-5);
+        // The slots hold values, not the graph of the step that made them: a slot that
+        // tracked its op would keep every earlier step alive (a leak of ~2 MB/update).
+        assert!(opt.slots().iter().all(|(_, t)| !t.track_op()));
     }
 
     #[test]

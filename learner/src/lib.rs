@@ -1,1 +1,15 @@
+//! saver-learner: the learner side of SAVER. A [`Hub`] is what actors talk to
+//! (register, hand over rollouts, wait for weights); the [`trainer`] thread forms
+//! batches, runs the algorithm's update off any async runtime and publishes each new
+//! version as one shared buffer. The embedded run reaches the hub through
+//! [`InProcessLink`]; the gRPC service will reach the same hub over the network.
 
+mod hub;
+mod inproc;
+pub mod metrics;
+pub mod trainer;
+
+pub use hub::{Hub, HubStats};
+pub use inproc::InProcessLink;
+pub use metrics::{EpisodeWindow, MetricsRow};
+pub use trainer::{spawn_trainer, TrainerHandle, TrainerOutcome};

@@ -1,0 +1,253 @@
+//! The meeting point of actors and the trainer thread: registrations, the bounded
+//! rollout queue and the newest published weights.
+
+use saver_core::config::RunConfig;
+use saver_core::env::EnvLayout;
+use saver_core::link::{Assignment, LinkError, PolicyWeights, Registration};
+use saver_core::rollout::Rollout;
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::Duration;
+
+/// A registered actor.
+#[derive(Clone, Debug)]
+pub struct ActorInfo {
+    /// Name it gave.
+    pub name: String,
+    /// Its session.
+    pub session: u64,
+    /// Env instances per rollout.
+    pub n_envs: u32,
+}
+
+/// Counters of the hub, for logs and metrics.
+#[derive(Debug, Default)]
+pub struct HubStats {
+    /// Rollouts accepted into the queue.
+    pub accepted: AtomicU64,
+    /// Rollouts refused at the edge (bad shape, unknown actor, closed).
+    pub rejected: AtomicU64,
+}
+
+struct State {
+    /// Registered actors by id.
+    actors: BTreeMap<u32, ActorInfo>,
+    /// Next id to hand out.
+    next_id: u32,
+    /// Newest weights.
+    weights: Arc<PolicyWeights>,
+    /// Set when the run is over: every waiter returns `Closed` with this reason.
+    closed: Option<String>,
+}
+
+/// Shared state between ingress and the trainer.
+pub struct Hub {
+    /// The run config handed to actors.
+    config: RunConfig,
+    /// Its hash.
+    config_hash: String,
+    /// Env layout (rollouts are checked against it).
+    layout: EnvLayout,
+    /// Registrations, weights, closed flag.
+    state: Mutex<State>,
+    /// Signalled on every publish, registration and close.
+    changed: Condvar,
+    /// Ingress side of the bounded rollout queue.
+    queue: SyncSender<Rollout>,
+    /// Counters.
+    pub stats: HubStats,
+}
+
+impl Hub {
+    /// A hub with initial weights; returns the trainer's end of the rollout queue.
+    /// `queue_depth` bounds the rollouts waiting for the trainer (back-pressure).
+    pub fn new(
+        config: RunConfig,
+        initial: PolicyWeights,
+        queue_depth: usize,
+    ) -> (Arc<Self>, Receiver<Rollout>) {
+        let (tx, rx) = mpsc::sync_channel(queue_depth.max(1));
+        let hub = Arc::new(Self {
+            config_hash: config.hash(),
+            layout: config.env.layout(),
+            config,
+            state: Mutex::new(State {
+                actors: BTreeMap::new(),
+                next_id: 0,
+                weights: Arc::new(initial),
+                closed: None,
+            }),
+            changed: Condvar::new(),
+            queue: tx,
+            stats: HubStats::default(),
+        });
+        (hub, rx)
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+        // A panic elsewhere while holding the lock leaves plain data behind; keep going.
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The run config.
+    pub fn config(&self) -> &RunConfig {
+        &self.config
+    }
+
+    /// Registers an actor: ids are dense and handed out in arrival order.
+    pub fn register(&self, reg: &Registration) -> Result<Assignment, LinkError> {
+        if reg.n_envs == 0 || reg.n_envs > 1024 {
+            return Err(LinkError::Rejected(format!(
+                "env count {} is not in 1..=1024",
+                reg.n_envs
+            )));
+        }
+        let mut s = self.lock();
+        if let Some(why) = &s.closed {
+            return Err(LinkError::Closed(why.clone()));
+        }
+        let actor_id = s.next_id;
+        s.next_id += 1;
+        s.actors.insert(
+            actor_id,
+            ActorInfo {
+                name: reg.name.clone(),
+                session: reg.session,
+                n_envs: reg.n_envs,
+            },
+        );
+        drop(s);
+        self.changed.notify_all();
+        tracing::debug!(actor_id, name = %reg.name, "actor registered");
+        Ok(Assignment {
+            actor_id,
+            config: self.config.clone(),
+            config_hash: self.config_hash.clone(),
+        })
+    }
+
+    /// Registered actors, by id.
+    pub fn actors(&self) -> BTreeMap<u32, ActorInfo> {
+        self.lock().actors.clone()
+    }
+
+    /// Blocks until at least `n` actors are registered or the hub closes.
+    pub fn wait_for_actors(&self, n: usize) -> Result<(), LinkError> {
+        let mut s = self.lock();
+        loop {
+            if let Some(why) = &s.closed {
+                return Err(LinkError::Closed(why.clone()));
+            }
+            if s.actors.len() >= n {
+                return Ok(());
+            }
+            s = self.changed.wait(s).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Validates a rollout at the edge and queues it for the trainer.
+    pub fn submit(&self, rollout: Rollout) -> Result<(), LinkError> {
+        let reject = |why: String| {
+            self.stats.rejected.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!("rollout rejected: {why}");
+            Err(LinkError::Rejected(why))
+        };
+        {
+            let s = self.lock();
+            if let Some(why) = &s.closed {
+                return Err(LinkError::Closed(why.clone()));
+            }
+            match s.actors.get(&rollout.actor_id) {
+                None => return reject(format!("unknown actor id {}", rollout.actor_id)),
+                Some(a) if a.session != rollout.session => {
+                    return reject(format!(
+                        "actor {} sent session {:x}, registered as {:x}",
+                        rollout.actor_id, rollout.session, a.session
+                    ))
+                }
+                Some(a) if a.n_envs as usize != rollout.n_envs => {
+                    return reject(format!(
+                        "actor {} registered {} envs but sent {}",
+                        rollout.actor_id, a.n_envs, rollout.n_envs
+                    ))
+                }
+                Some(_) => {}
+            }
+        }
+        if rollout.n_steps != self.config.rollout as usize {
+            return reject(format!(
+                "rollout has {} steps, this run uses {}",
+                rollout.n_steps, self.config.rollout
+            ));
+        }
+        if let Err(e) = rollout.validate(&self.layout) {
+            return reject(e.to_string());
+        }
+        // Back-pressure: wait for room, but notice a close while waiting.
+        let mut item = rollout;
+        loop {
+            match self.queue.try_send(item) {
+                Ok(()) => {
+                    self.stats.accepted.fetch_add(1, Ordering::Relaxed);
+                    return Ok(());
+                }
+                Err(TrySendError::Disconnected(_)) => {
+                    return Err(LinkError::Closed("the trainer has stopped".into()))
+                }
+                Err(TrySendError::Full(back)) => {
+                    item = back;
+                    let s = self.lock();
+                    if let Some(why) = &s.closed {
+                        return Err(LinkError::Closed(why.clone()));
+                    }
+                    let _ = self
+                        .changed
+                        .wait_timeout(s, Duration::from_millis(2))
+                        .unwrap_or_else(|e| e.into_inner());
+                }
+            }
+        }
+    }
+
+    /// The newest weights.
+    pub fn latest(&self) -> Arc<PolicyWeights> {
+        self.lock().weights.clone()
+    }
+
+    /// Blocks until weights of at least `min_version` exist; returns the newest.
+    pub fn wait_weights(&self, min_version: u64) -> Result<Arc<PolicyWeights>, LinkError> {
+        let mut s = self.lock();
+        loop {
+            if s.weights.version >= min_version {
+                return Ok(s.weights.clone());
+            }
+            if let Some(why) = &s.closed {
+                return Err(LinkError::Closed(why.clone()));
+            }
+            s = self.changed.wait(s).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Publishes a new version: one shared buffer for every reader.
+    pub fn publish(&self, weights: Arc<PolicyWeights>) {
+        self.lock().weights = weights;
+        self.changed.notify_all();
+    }
+
+    /// Ends the run: every waiting or future call returns `Closed(why)`.
+    pub fn close(&self, why: &str) {
+        let mut s = self.lock();
+        if s.closed.is_none() {
+            s.closed = Some(why.to_string());
+        }
+        drop(s);
+        self.changed.notify_all();
+    }
+
+    /// Whether the hub is closed.
+    pub fn is_closed(&self) -> bool {
+        self.lock().closed.is_some()
+    }
+}

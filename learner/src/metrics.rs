@@ -1,0 +1,150 @@
+//! Run metrics: the mean length of the last 100 finished episodes (over all actors and
+//! over actor 0 alone, as the paper plotted), and metrics.csv, one row per update.
+
+use saver_core::rollout::Episode;
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::Path;
+
+/// Episodes the running mean covers (the paper's 100).
+pub const WINDOW: usize = 100;
+
+/// The last [`WINDOW`] episode lengths, over all actors and for actor 0.
+#[derive(Clone, Debug, Default)]
+pub struct EpisodeWindow {
+    /// All actors.
+    all: VecDeque<u32>,
+    /// Actor 0 only.
+    actor0: VecDeque<u32>,
+    /// Episodes seen in total.
+    pub total: u64,
+    /// Of those, reached the goal.
+    pub successes: u64,
+}
+
+fn push(q: &mut VecDeque<u32>, x: u32) {
+    if q.len() == WINDOW {
+        q.pop_front();
+    }
+    q.push_back(x);
+}
+
+fn mean(q: &VecDeque<u32>) -> Option<f64> {
+    (!q.is_empty()).then(|| q.iter().map(|&x| x as f64).sum::<f64>() / q.len() as f64)
+}
+
+impl EpisodeWindow {
+    /// Adds finished episodes.
+    pub fn extend(&mut self, episodes: &[Episode]) {
+        for e in episodes {
+            push(&mut self.all, e.length);
+            if e.actor_id == 0 {
+                push(&mut self.actor0, e.length);
+            }
+            self.total += 1;
+            self.successes += e.success as u64;
+        }
+    }
+    /// Mean of the last 100 over all actors (None before the first episode).
+    pub fn mean_all(&self) -> Option<f64> {
+        mean(&self.all)
+    }
+    /// Mean of actor 0's last 100.
+    pub fn mean_actor0(&self) -> Option<f64> {
+        mean(&self.actor0)
+    }
+}
+
+/// One row of metrics.csv.
+#[derive(Clone, Debug)]
+pub struct MetricsRow {
+    /// Env steps trained on.
+    pub steps: u64,
+    /// Updates (= weights version).
+    pub updates: u64,
+    /// Seconds since training started.
+    pub wall_s: f64,
+    /// steps / wall_s.
+    pub steps_per_s: f64,
+    /// Mean length of the last 100 episodes, all actors.
+    pub mean_ep_len_100: Option<f64>,
+    /// The same for actor 0.
+    pub mean_ep_len_100_actor0: Option<f64>,
+    /// Episodes finished so far.
+    pub episodes: u64,
+    /// The algorithm's losses and diagnostics.
+    pub stats: Vec<f32>,
+}
+
+/// Writes metrics.csv (header from the algorithm's stat names).
+pub struct MetricsCsv {
+    /// The open file.
+    out: std::io::BufWriter<std::fs::File>,
+}
+
+fn opt(x: Option<f64>) -> String {
+    x.map(|v| format!("{v:.3}")).unwrap_or_default()
+}
+
+impl MetricsCsv {
+    /// Creates `path` and writes the header.
+    pub fn create(path: &Path, stat_names: &[&str]) -> std::io::Result<Self> {
+        let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+        write!(
+            out,
+            "steps,updates,wall_s,steps_per_s,mean_ep_len_100,mean_ep_len_100_actor0,episodes"
+        )?;
+        for n in stat_names {
+            write!(out, ",{n}")?;
+        }
+        writeln!(out)?;
+        Ok(Self { out })
+    }
+
+    /// Appends a row (flushed, so a crash loses at most the row being written).
+    pub fn write(&mut self, r: &MetricsRow) -> std::io::Result<()> {
+        write!(
+            self.out,
+            "{},{},{:.3},{:.1},{},{},{}",
+            r.steps,
+            r.updates,
+            r.wall_s,
+            r.steps_per_s,
+            opt(r.mean_ep_len_100),
+            opt(r.mean_ep_len_100_actor0),
+            r.episodes
+        )?;
+        for v in &r.stats {
+            write!(self.out, ",{v:e}")?;
+        }
+        writeln!(self.out)?;
+        self.out.flush()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn window_keeps_the_last_hundred_and_actor_zero_apart() {
+        let mut w = EpisodeWindow::default();
+        assert_eq!(w.mean_all(), None);
+        // 150 episodes of actor 1 with length 10, then 100 of actor 0 with length 30:
+        // the all-actor window holds only the last 100 (all 30s); actor 0's mean is 30.
+        let ep = |actor_id, length| Episode {
+            actor_id,
+            length,
+            success: true,
+            ret: 0.0,
+        };
+        w.extend(&vec![ep(1, 10); 150]);
+        assert_eq!(w.mean_all(), Some(10.0));
+        assert_eq!(w.mean_actor0(), None);
+        w.extend(&vec![ep(0, 30); 50]);
+        // Last 100: 50 tens and 50 thirties → 20.
+        assert_eq!(w.mean_all(), Some(20.0));
+        assert_eq!(w.mean_actor0(), Some(30.0));
+        assert_eq!(w.total, 200);
+    }
+}

@@ -1,0 +1,188 @@
+//! The PCPN store: `pcpn-<env>-d<dim>.safetensors` files whose metadata name their env
+//! spec, architecture, training and a content hash. Loading verifies the spec and hash.
+
+use candle_core::Device;
+use saver_core::checkpoint;
+use saver_core::env::EnvSpec;
+use saver_core::nets::Pcpn;
+use saver_proto::NamedTensor;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Metadata format tag.
+pub const FORMAT: &str = "saver-pcpn/1";
+
+/// Why a stored PCPN cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// The file is for other dynamics.
+    #[error("{path}: this PCPN was pretrained for {found}, but the run needs {wanted}; pretrain one with `saver pretrain --env {} --dim {}` or point --pcpn at the right file", wanted.kind.name(), wanted.dim)]
+    SpecMismatch {
+        /// File.
+        path: String,
+        /// Spec in the file.
+        found: String,
+        /// Spec the caller needs.
+        wanted: EnvSpec,
+    },
+    /// The tensors do not hash to the recorded sha256.
+    #[error("{path}: weights sha256 is {actual}, metadata says {recorded}: the file is corrupt")]
+    HashMismatch {
+        /// File.
+        path: String,
+        /// Recorded.
+        recorded: String,
+        /// Computed.
+        actual: String,
+    },
+    /// Unreadable or malformed.
+    #[error(transparent)]
+    Core(#[from] saver_core::CoreError),
+    /// Metadata missing or unparsable.
+    #[error("{path}: {why}")]
+    Meta {
+        /// File.
+        path: String,
+        /// What is wrong.
+        why: String,
+    },
+}
+
+/// What a stored PCPN says about itself.
+#[derive(Clone, Debug)]
+pub struct PcpnInfo {
+    /// The env spec it models.
+    pub spec: EnvSpec,
+    /// All metadata entries.
+    pub meta: HashMap<String, String>,
+    /// sha256 of the tensor contents (names, shapes, values).
+    pub weights_sha256: String,
+    /// The file.
+    pub path: PathBuf,
+}
+
+/// sha256 over every tensor's name, shape and little-endian values, in name order: a
+/// hash of the weights that does not depend on metadata.
+pub fn weights_sha256(tensors: &[NamedTensor]) -> String {
+    let mut sorted: Vec<&NamedTensor> = tensors.iter().collect();
+    sorted.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut bytes = Vec::new();
+    for t in sorted {
+        bytes.extend_from_slice(t.name.as_bytes());
+        for d in &t.shape {
+            bytes.extend_from_slice(&(*d as u64).to_le_bytes());
+        }
+        for v in &t.data {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    saver_proto::sha256_hex(&bytes)
+}
+
+/// A folder of PCPN files.
+#[derive(Clone, Debug)]
+pub struct PcpnStore {
+    /// The folder.
+    dir: PathBuf,
+}
+
+impl PcpnStore {
+    /// A store in `dir` (created on first save).
+    pub fn new(dir: impl Into<PathBuf>) -> Self {
+        Self { dir: dir.into() }
+    }
+
+    /// Where the PCPN of `spec` lives.
+    pub fn path_for(&self, spec: &EnvSpec) -> PathBuf {
+        self.dir.join(format!("pcpn-{spec}.safetensors"))
+    }
+
+    /// Saves tensors with metadata (the spec and hash are added here).
+    pub fn save(
+        &self,
+        spec: &EnvSpec,
+        tensors: &[NamedTensor],
+        mut meta: HashMap<String, String>,
+    ) -> Result<PcpnInfo, StoreError> {
+        let path = self.path_for(spec);
+        let hash = weights_sha256(tensors);
+        meta.insert("format".into(), FORMAT.into());
+        meta.insert(
+            "env_spec".into(),
+            serde_json::to_string(spec).unwrap_or_default(),
+        );
+        meta.insert("env".into(), spec.to_string());
+        meta.insert("weights_sha256".into(), hash.clone());
+        checkpoint::save(&path, tensors, &meta)?;
+        Ok(PcpnInfo {
+            spec: *spec,
+            meta,
+            weights_sha256: hash,
+            path,
+        })
+    }
+
+    /// The PCPN of `spec` from the store, if present.
+    pub fn find(
+        &self,
+        spec: &EnvSpec,
+        dev: &Device,
+    ) -> Result<Option<(Pcpn, PcpnInfo)>, StoreError> {
+        let path = self.path_for(spec);
+        if !path.exists() {
+            return Ok(None);
+        }
+        load_pcpn(&path, spec, dev).map(Some)
+    }
+}
+
+/// Loads a PCPN file, refusing one for another env spec or with a wrong hash.
+pub fn load_pcpn(
+    path: &Path,
+    wanted: &EnvSpec,
+    dev: &Device,
+) -> Result<(Pcpn, PcpnInfo), StoreError> {
+    let shown = path.display().to_string();
+    let loaded = checkpoint::load(path)?;
+    let meta_err = |why: &str| StoreError::Meta {
+        path: shown.clone(),
+        why: why.to_string(),
+    };
+    let spec_json = loaded
+        .meta
+        .get("env_spec")
+        .ok_or_else(|| meta_err("no env_spec in metadata: not a SAVER PCPN file"))?;
+    let spec: EnvSpec = serde_json::from_str(spec_json)
+        .map_err(|e| meta_err(&format!("env_spec {spec_json:?} is unreadable: {e}")))?;
+    if spec != *wanted {
+        return Err(StoreError::SpecMismatch {
+            path: shown,
+            found: spec.to_string(),
+            wanted: *wanted,
+        });
+    }
+    let recorded = loaded
+        .meta
+        .get("weights_sha256")
+        .ok_or_else(|| meta_err("no weights_sha256 in metadata"))?
+        .clone();
+    let actual = weights_sha256(&loaded.tensors);
+    if recorded != actual {
+        return Err(StoreError::HashMismatch {
+            path: shown,
+            recorded,
+            actual,
+        });
+    }
+    let map = checkpoint::to_candle(&loaded.tensors, dev)?;
+    let pcpn = Pcpn::frozen(&spec.layout(), &|n| map.get(n).cloned())?;
+    Ok((
+        pcpn,
+        PcpnInfo {
+            spec,
+            meta: loaded.meta,
+            weights_sha256: actual,
+            path: path.to_path_buf(),
+        },
+    ))
+}

@@ -1,0 +1,129 @@
+//! Pretraining a PCPN for an env spec, with divergence detection and a held-out
+//! quantile loss on fresh samples.
+
+use candle_core::Device;
+use saver_core::config::{PretrainConfig, RunConfig};
+use saver_core::nets::Pcpn;
+use saver_core::pretrain::{EnvSampler, Pretrainer};
+use saver_core::rng::streams;
+use saver_core::{checkpoint, CoreError};
+use std::collections::HashMap;
+
+/// What pretraining reports after each batch.
+pub struct PretrainProgress {
+    /// Batches done.
+    pub batch: u64,
+    /// Of.
+    pub batches: u64,
+    /// Training loss of this batch.
+    pub loss: f32,
+}
+
+/// The outcome of pretraining.
+pub struct PretrainReport {
+    /// The frozen PCPN.
+    pub pcpn: Pcpn,
+    /// Its tensors, ready to save.
+    pub tensors: Vec<saver_proto::NamedTensor>,
+    /// Metadata for the file.
+    pub meta: HashMap<String, String>,
+    /// Held-out quantile loss before training.
+    pub initial_loss: f32,
+    /// Held-out quantile loss after training.
+    pub held_out_loss: f32,
+}
+
+/// Stream of the held-out sample source (apart from training and tau draws).
+const HELD_OUT_SOURCE: u64 = 5;
+/// How often (in batches) the training loss is checked for divergence.
+const CHECK_EVERY: u64 = 500;
+/// A loss this many times the initial held-out loss counts as diverged.
+const DIVERGED_FACTOR: f32 = 100.0;
+
+/// Pretrains a PCPN for `config.env` per `config.pretrain`; fails on divergence.
+pub fn pretrain_pcpn(
+    config: &RunConfig,
+    dev: &Device,
+    progress: &mut dyn FnMut(&PretrainProgress),
+) -> Result<PretrainReport, CoreError> {
+    let p: &PretrainConfig = &config.pretrain;
+    let source = Box::new(EnvSampler::new(config.env, config.seed, streams::PRETRAIN));
+    let mut held_out = EnvSampler::new(config.env, config.seed, HELD_OUT_SOURCE);
+    let k = config.saver.quantiles;
+    let mut trainer = Pretrainer::new(
+        source,
+        config.seed,
+        config.optimizer,
+        p.lr,
+        p.batch_size,
+        k,
+        dev,
+    )?;
+    let initial_loss = trainer.evaluate(&mut held_out, p.eval_batches, config.seed)?;
+    let mut recent = 0.0f32;
+    for batch in 1..=p.batches {
+        let loss = trainer.step()?;
+        recent = if batch == 1 {
+            loss
+        } else {
+            0.98 * recent + 0.02 * loss
+        };
+        if batch % CHECK_EVERY == 0 && recent > DIVERGED_FACTOR * initial_loss {
+            return Err(CoreError::Diverged(format!(
+                "PCPN pretraining diverged: training loss {recent:.3e} after {batch} batches \
+                 (held-out loss at start {initial_loss:.3e}); lower --pretrain-lr (now {})",
+                p.lr
+            )));
+        }
+        progress(&PretrainProgress {
+            batch,
+            batches: p.batches,
+            loss,
+        });
+    }
+    let held_out_loss = trainer.evaluate(&mut held_out, p.eval_batches, config.seed)?;
+    if !held_out_loss.is_finite() || held_out_loss > DIVERGED_FACTOR * initial_loss {
+        return Err(CoreError::Diverged(format!(
+            "PCPN pretraining diverged: held-out loss {held_out_loss:.3e} (at start {initial_loss:.3e})"
+        )));
+    }
+    let pcpn = trainer.frozen()?;
+    let tensors = checkpoint::to_named_all(&pcpn.tensors())?;
+    let layout = config.env.layout();
+    let meta = HashMap::from([
+        (
+            "architecture".to_string(),
+            format!(
+                "x[{}]->256->{}x128, cos(pi*i*tau) i=1..128, per-dim 128->64->1, relu",
+                layout.pcpn_input_dim(),
+                layout.aligned_dim
+            ),
+        ),
+        (
+            "layout".to_string(),
+            serde_json::to_string(&layout).unwrap_or_default(),
+        ),
+        ("batches".to_string(), p.batches.to_string()),
+        ("batch_size".to_string(), p.batch_size.to_string()),
+        ("quantiles".to_string(), k.to_string()),
+        ("lr".to_string(), p.lr.to_string()),
+        (
+            "optimizer".to_string(),
+            serde_json::to_string(&config.optimizer).unwrap_or_default(),
+        ),
+        ("seed".to_string(), config.seed.to_string()),
+        (
+            "initial_held_out_loss".to_string(),
+            initial_loss.to_string(),
+        ),
+        ("held_out_loss".to_string(), held_out_loss.to_string()),
+        ("held_out_batches".to_string(), p.eval_batches.to_string()),
+    ]);
+    Ok(PretrainReport {
+        pcpn,
+        tensors,
+        meta,
+        initial_loss,
+        held_out_loss,
+    })
+}

@@ -1,0 +1,199 @@
+//! `saver bench`: times the A2C and SAVER updates (B = 128, K = 32) for d = 2, 4, 8, 16
+//! and a whole rollout-plus-update cycle, and puts each update's GFLOP/s beside the
+//! single-core matmul GFLOP/s measured in the same run.
+//!
+//! FLOPs counted (multiply-add = 2): a trained dense layer costs 3× its forward
+//! (forward, input gradient, weight gradient); the frozen PCPN costs 2× its forward
+//! (forward and input gradient: no weight gradient is needed).
+
+use crate::train::train_with;
+use anyhow::Result;
+use candle_core::{Device, Tensor};
+use clap::Args;
+use saver_core::algo::{build, Algorithm};
+use saver_core::config::{Algo, RunConfig};
+use saver_core::env::{EnvKind, EnvLayout, EnvSpec};
+use saver_core::nets::{ParamSet, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
+use saver_core::rng::{rng_for, uniform01};
+use saver_core::rollout::Batch;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// `saver bench` flags.
+#[derive(Args, Clone, Debug)]
+pub struct BenchArgs {
+    /// Dimensions to time.
+    #[arg(long, value_delimiter = ',', default_value = "2,4,8,16")]
+    pub dims: Vec<usize>,
+    /// Seconds to spend timing each update kind.
+    #[arg(long, default_value_t = 2.0)]
+    pub seconds: f64,
+    /// Threads for the updates (default: candle's, one per physical core).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Updates in each rollout-plus-update cycle measurement.
+    #[arg(long, default_value_t = 100)]
+    pub cycle_updates: u64,
+}
+
+/// Sets candle's CPU thread count (read at every matmul). Called before other threads
+/// of the bench start.
+fn set_threads(n: Option<usize>) {
+    match n {
+        Some(n) => std::env::set_var("CANDLE_NUM_THREADS", n.to_string()),
+        None => std::env::remove_var("CANDLE_NUM_THREADS"),
+    }
+}
+
+/// Calls `f` repeatedly for about `seconds` (after one warm-up call); mean seconds per call.
+fn time<F: FnMut() -> Result<()>>(seconds: f64, mut f: F) -> Result<f64> {
+    f()?;
+    let start = Instant::now();
+    let mut n = 0u32;
+    while n < 3 || start.elapsed() < Duration::from_secs_f64(seconds) {
+        f()?;
+        n += 1;
+    }
+    Ok(start.elapsed().as_secs_f64() / n as f64)
+}
+
+/// Single-core f32 matmul GFLOP/s (1024³ through candle).
+pub fn matmul_peak(seconds: f64) -> Result<f64> {
+    let n = 1024;
+    let dev = Device::Cpu;
+    let mut rng = rng_for(1, 0);
+    let a = Tensor::from_vec(uniform01(&mut rng, n * n), (n, n), &dev)?;
+    let b = Tensor::from_vec(uniform01(&mut rng, n * n), (n, n), &dev)?;
+    let s = time(seconds, || {
+        a.matmul(&b)?;
+        Ok(())
+    })?;
+    Ok(2.0 * (n * n * n) as f64 / s / 1e9)
+}
+
+fn mlp_flops(rows: usize, dims: &[usize]) -> f64 {
+    dims.windows(2)
+        .map(|w| 2.0 * (rows * w[0] * w[1]) as f64)
+        .sum()
+}
+
+/// FLOPs of one update as counted in the module doc.
+pub fn update_flops(algo: Algo, l: &EnvLayout, b: usize, t: usize, k: usize) -> f64 {
+    let rows = b + t;
+    let [h0, h1, h2] = TRUNK;
+    match algo {
+        Algo::A2c => 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim() + 1]),
+        Algo::Saver => {
+            let agent = 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
+            let critic = 3.0 * mlp_flops(rows, &[l.pcpn_input_dim(), h0, h1, h2, l.aligned_dim]);
+            let d = l.aligned_dim;
+            let shared = mlp_flops(b, &[l.pcpn_input_dim(), PCPN_HIDDEN, d * PCPN_CHUNK]);
+            let heads = d as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
+            let embed = (b * k * d * PCPN_CHUNK) as f64;
+            agent + critic + 2.0 * (shared + heads + embed)
+        }
+    }
+}
+
+/// A batch of 16 trajectories × 8 steps with random contents of the right shapes.
+fn synthetic_batch(l: &EnvLayout, seed: u64) -> Batch {
+    let (t, n) = (16, 8);
+    let b = t * n;
+    let mut rng = rng_for(seed, 9);
+    let mut u = |len: usize| {
+        uniform01(&mut rng, len)
+            .into_iter()
+            .map(|x| 2.0 * x - 1.0)
+            .collect::<Vec<_>>()
+    };
+    Batch {
+        n_traj: t,
+        n_steps: n,
+        obs: u(b * l.obs_dim),
+        last_obs: u(t * l.obs_dim),
+        actions: u(b * l.action_dim()),
+        state_delta: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
+        vector_reward: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
+        done: (0..b).map(|i| i % 97 == 0).collect(),
+        steps: b as u64,
+    }
+}
+
+/// An untrained frozen PCPN (timing does not depend on its training).
+pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
+    let mut params = ParamSet::default();
+    let p = Pcpn::init(&spec.layout(), &mut rng_for(0, 3), dev, &mut params)?;
+    let tensors = p.tensors();
+    Ok(Pcpn::frozen(&spec.layout(), &|n| {
+        tensors.iter().find(|(k, _)| k == n).map(|(_, t)| t.clone())
+    })?)
+}
+
+/// Runs `saver bench`.
+pub fn run(args: BenchArgs) -> Result<()> {
+    set_threads(Some(1));
+    let peak = matmul_peak(args.seconds)?;
+    set_threads(args.threads);
+    let threads = candle_core::utils::get_num_threads();
+    println!(
+        "single-core matmul (1024^3, candle): {peak:.1} GFLOP/s; updates use {threads} thread(s)\n"
+    );
+    println!(
+        "{:<6} {:>3} {:>12} {:>14} {:>10} {:>12}",
+        "algo", "d", "ms/update", "steps/s", "GFLOP/s", "of peak"
+    );
+    let dev = Device::Cpu;
+    for algo in [Algo::A2c, Algo::Saver] {
+        for &d in &args.dims {
+            let spec = EnvSpec::new(EnvKind::Angle, d)?;
+            let config = RunConfig::paper(spec, algo, 1);
+            let pcpn = (algo == Algo::Saver)
+                .then(|| random_pcpn(&spec, &dev))
+                .transpose()?;
+            let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
+            let batch = synthetic_batch(&spec.layout(), d as u64);
+            let s = time(args.seconds, || {
+                a.update(&batch)?;
+                Ok(())
+            })?;
+            let flops = update_flops(
+                algo,
+                &spec.layout(),
+                batch.len(),
+                batch.n_traj,
+                config.saver.quantiles,
+            );
+            let gflops = flops / s / 1e9;
+            println!(
+                "{:<6} {d:>3} {:>12.2} {:>14.0} {:>10.2} {:>11.1}%",
+                algo.name(),
+                s * 1e3,
+                batch.len() as f64 / s,
+                gflops,
+                100.0 * gflops / peak
+            );
+        }
+    }
+    println!("\nrollout + update cycle (16 actors x 8 steps, in-process, angle):");
+    let out = std::env::temp_dir().join(format!("saver-bench-{}", std::process::id()));
+    for (algo, d) in [(Algo::A2c, 4), (Algo::Saver, 4)] {
+        let spec = EnvSpec::new(EnvKind::Angle, d)?;
+        let mut config = RunConfig::paper(spec, algo, 0);
+        config.steps = args.cycle_updates * config.batch_transitions();
+        let pcpn = (algo == Algo::Saver)
+            .then(|| random_pcpn(&spec, &dev))
+            .transpose()?;
+        let o = train_with(&config, &out, pcpn, Arc::new(AtomicBool::new(false)), false)?;
+        println!(
+            "  {:<6} d={d}: {} updates in {:.2} s = {:.0} env steps/s ({:.2} ms per cycle)",
+            algo.name(),
+            o.version,
+            o.wall_s,
+            o.steps as f64 / o.wall_s,
+            1e3 * o.wall_s / o.version as f64
+        );
+    }
+    std::fs::remove_dir_all(&out).ok();
+    Ok(())
+}

@@ -1,0 +1,168 @@
+//! `saver train`: the embedded run. One process holds the PCPN, the learner's trainer
+//! thread and the actors (threads over the in-process link); the same learner and actor
+//! code serve the distributed roles.
+
+use crate::config::{to_toml, TrainArgs};
+use crate::plot::plot_runs;
+use crate::pretrain::obtain_pcpn;
+use crate::progress::Progress;
+use anyhow::{anyhow, Context, Result};
+use saver_actor::run_actor;
+use saver_core::config::{Algo, RunConfig};
+use saver_core::link::{PolicyWeights, Registration};
+use saver_core::nets::Pcpn;
+use saver_learner::{spawn_trainer, Hub, InProcessLink, MetricsRow, TrainerOutcome};
+use saver_pcpn_trainer::PcpnStore;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// Runs `saver train` from flags.
+pub fn run(args: TrainArgs) -> Result<()> {
+    let config = args.run.resolve()?;
+    let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    // A second Ctrl-C while the checkpoint is written falls through to the default.
+    let _ = ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+        eprintln!("\nstopping: finishing the current update and writing a checkpoint…");
+    });
+    let outcome = train(
+        &config,
+        &out,
+        &args.pcpn_dir,
+        args.pcpn.as_deref(),
+        stop,
+        true,
+    )?;
+    report(&config, &outcome, &out);
+    Ok(())
+}
+
+fn default_run_dir(c: &RunConfig) -> PathBuf {
+    let t = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    PathBuf::from("runs").join(format!("{}-{}-seed{}-{t}", c.env, c.algo.name(), c.seed))
+}
+
+/// Trains per `config` into `out`; `show` draws progress on stderr.
+pub fn train(
+    config: &RunConfig,
+    out: &Path,
+    pcpn_dir: &Path,
+    pcpn_file: Option<&Path>,
+    stop: Arc<AtomicBool>,
+    show: bool,
+) -> Result<TrainerOutcome> {
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("creating run folder {}", out.display()))?;
+    std::fs::write(out.join("config.toml"), to_toml(config)).context("writing config.toml")?;
+    let pcpn = match config.algo {
+        Algo::Saver => Some(obtain_pcpn(config, &PcpnStore::new(pcpn_dir), pcpn_file)?.0),
+        Algo::A2c => None,
+    };
+    let outcome = train_with(config, out, pcpn, stop, show)?;
+    let png = out.join("learning_curve.png");
+    plot_runs(&[out.to_path_buf()], &png).context("drawing the learning curve")?;
+    Ok(outcome)
+}
+
+/// The embedded run proper, around a given PCPN (SAVER) or none (A2C): learner
+/// thread, actor threads over the in-process link, progress from the metrics rows.
+pub fn train_with(
+    config: &RunConfig,
+    out: &Path,
+    pcpn: Option<Pcpn>,
+    stop: Arc<AtomicBool>,
+    show: bool,
+) -> Result<TrainerOutcome> {
+    let dev = saver_core::device();
+    let algo = saver_core::algo::build(config, pcpn, &dev)?;
+    let initial = PolicyWeights {
+        version: 0,
+        tensors: algo.policy_tensors()?,
+    };
+    let (hub, rx) = Hub::new(config.clone(), initial, 2 * config.actors as usize);
+    let (row_tx, row_rx) = mpsc::channel::<MetricsRow>();
+    let trainer = spawn_trainer(
+        algo,
+        hub.clone(),
+        rx,
+        out.to_path_buf(),
+        Some(row_tx),
+        stop.clone(),
+    )?;
+    let mut actors = Vec::new();
+    for i in 0..config.actors {
+        let mut link = InProcessLink::new(hub.clone());
+        let stop = stop.clone();
+        let reg = Registration {
+            name: format!("embedded-{i}"),
+            session: rand::random(),
+            n_envs: config.envs_per_actor,
+        };
+        actors.push(
+            std::thread::Builder::new()
+                .name(format!("saver-actor-{i}"))
+                .spawn(move || run_actor(&mut link, &reg, &stop))?,
+        );
+    }
+    let label = format!("{} {}", config.algo.name(), config.env);
+    let mut progress = show.then(|| Progress::new(&label, config.steps, "steps"));
+    for row in row_rx {
+        if let Some(p) = progress.as_mut() {
+            let len = row
+                .mean_ep_len_100
+                .map(|m| format!("{m:.0}"))
+                .unwrap_or_else(|| "-".into());
+            p.update(
+                row.steps,
+                &format!("mean ep len {len} | update {}", row.updates),
+            );
+        }
+    }
+    if let Some(p) = &progress {
+        p.finish();
+    }
+    let outcome = trainer
+        .join
+        .join()
+        .map_err(|_| anyhow!("the trainer thread panicked"))??;
+    hub.close("run over");
+    for a in actors {
+        match a.join() {
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) => tracing::warn!("actor ended with an error: {e}"),
+            Err(_) => tracing::warn!("an actor thread panicked"),
+        }
+    }
+    Ok(outcome)
+}
+
+fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
+    let len = o
+        .mean_ep_len_100
+        .map(|m| format!("{m:.1}"))
+        .unwrap_or_else(|| "n/a (no episode finished)".into());
+    println!(
+        "{} {}: {} steps, {} updates in {:.1} s ({:.0} steps/s){}; mean episode length (last 100): {len}",
+        config.algo.name(),
+        config.env,
+        o.steps,
+        o.version,
+        o.wall_s,
+        o.steps as f64 / o.wall_s.max(1e-9),
+        if o.interrupted { ", stopped early" } else { "" }
+    );
+    println!("Outputs in {}:", out.display());
+    println!("  config      {}", out.join("config.toml").display());
+    println!("  metrics     {}", o.metrics.display());
+    println!("  plot        {}", out.join("learning_curve.png").display());
+    println!("  checkpoint  {}", o.checkpoint.display());
+}
