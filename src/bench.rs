@@ -124,7 +124,7 @@ fn synthetic_batch(l: &EnvLayout, seed: u64) -> Batch {
 pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
     let mut params = ParamSet::default();
     let p = Pcpn::init(&spec.layout(), &mut rng_for(0, 3), dev, &mut params)?;
-    let tensors = p.tensors();
+    let tensors = p.tensors()?;
     Ok(Pcpn::frozen(&spec.layout(), &|n| {
         tensors.iter().find(|(k, _)| k == n).map(|(_, t)| t.clone())
     })?)

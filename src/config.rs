@@ -13,11 +13,11 @@ use std::path::{Path, PathBuf};
 /// Default env of `saver train` with no flags: learns visibly in ~5 minutes on 2 cores.
 pub const DEFAULT_ENV: &str = "angle";
 /// Default dimension.
-pub const DEFAULT_DIM: usize = 2;
+pub const DEFAULT_DIM: usize = 4;
 /// Default algorithm (SAVER as published does not learn; see the README).
 pub const DEFAULT_ALGO: &str = "a2c";
 /// Default length of a run in env steps.
-pub const DEFAULT_STEPS: u64 = 400_000;
+pub const DEFAULT_STEPS: u64 = 1_000_000;
 
 /// Settings shared by every command that defines a run.
 #[derive(Args, Clone, Debug, Default)]

@@ -3,7 +3,7 @@
 //! - quantile loss ρ_τ(δ) = (τ − 1{δ<0})·δ; Huber variant |τ − 1{δ<0}|·L_κ(δ)/κ;
 //! - monotonic penalty Huber_{κ=1}(relu(Q(τ_i) − Q(τ_k))) on pairs with τ_i < τ_k.
 
-use candle_core::{DType, Tensor, D};
+use candle_core::{Tensor, D};
 
 /// Standard Huber with κ: 0.5·x² for |x| ≤ κ, κ·(|x| − κ/2) beyond.
 pub fn huber(x: &Tensor, kappa: f64) -> candle_core::Result<Tensor> {
@@ -42,7 +42,7 @@ pub fn monotonic_penalty(q: &Tensor, tau: &Tensor) -> candle_core::Result<Tensor
     let qk = q.unsqueeze(D::Minus2)?.broadcast_as(shape.as_slice())?;
     let ti = tau.unsqueeze(D::Minus1)?.broadcast_as(shape.as_slice())?;
     let tk = tau.unsqueeze(D::Minus2)?.broadcast_as(shape.as_slice())?;
-    let ordered = ti.lt(&tk)?.to_dtype(DType::F32)?.detach();
+    let ordered = ti.lt(&tk)?.to_dtype(q.dtype())?.detach();
     let violation = (qi - qk)?.relu()?;
     huber(&violation, 1.0)? * ordered
 }

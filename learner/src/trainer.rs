@@ -192,7 +192,7 @@ impl Trainer {
         c: &Counters,
         config: &saver_core::config::RunConfig,
     ) -> Result<()> {
-        let tensors = checkpoint::to_named_all(&self.algo.state_tensors())?;
+        let tensors = checkpoint::to_named_all(&self.algo.state_tensors()?)?;
         let meta = HashMap::from([
             (
                 "format".to_string(),

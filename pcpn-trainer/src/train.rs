@@ -36,7 +36,7 @@ pub struct PretrainReport {
 /// Stream of the held-out sample source (apart from training and tau draws).
 const HELD_OUT_SOURCE: u64 = 5;
 /// How often (in batches) the training loss is checked for divergence.
-const CHECK_EVERY: u64 = 500;
+const CHECK_EVERY: u64 = 50;
 /// A loss this many times the initial held-out loss counts as diverged.
 const DIVERGED_FACTOR: f32 = 100.0;
 
@@ -70,7 +70,7 @@ pub fn pretrain_pcpn(
         };
         if batch % CHECK_EVERY == 0 && recent > DIVERGED_FACTOR * initial_loss {
             return Err(CoreError::Diverged(format!(
-                "PCPN pretraining diverged: training loss {recent:.3e} after {batch} batches \
+                "PCPN pretraining: training loss {recent:.3e} after {batch} batches \
                  (held-out loss at start {initial_loss:.3e}); lower --pretrain-lr (now {})",
                 p.lr
             )));
@@ -82,13 +82,15 @@ pub fn pretrain_pcpn(
         });
     }
     let held_out_loss = trainer.evaluate(&mut held_out, p.eval_batches, config.seed)?;
-    if !held_out_loss.is_finite() || held_out_loss > DIVERGED_FACTOR * initial_loss {
+    if !held_out_loss.is_finite() || held_out_loss >= initial_loss {
         return Err(CoreError::Diverged(format!(
-            "PCPN pretraining diverged: held-out loss {held_out_loss:.3e} (at start {initial_loss:.3e})"
+            "PCPN pretraining failed: held-out quantile loss {held_out_loss:.3e} is not below \
+             the untrained network's {initial_loss:.3e}; lower --pretrain-lr (now {}) or train longer",
+            p.lr
         )));
     }
     let pcpn = trainer.frozen()?;
-    let tensors = checkpoint::to_named_all(&pcpn.tensors())?;
+    let tensors = checkpoint::to_named_all(&pcpn.tensors()?)?;
     let layout = config.env.layout();
     let meta = HashMap::from([
         (

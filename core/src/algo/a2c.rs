@@ -111,13 +111,13 @@ impl Algorithm for A2c {
     }
 
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
-        checkpoint::to_named_all(&self.agent.params().tensors())
+        checkpoint::to_named_all(&self.agent.params().tensors()?)
     }
 
-    fn state_tensors(&self) -> Vec<(String, Tensor)> {
-        let mut t = self.agent.params().tensors();
+    fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
+        let mut t = self.agent.params().tensors()?;
         t.extend(self.opt.slots());
-        t
+        Ok(t)
     }
 
     fn optimizer_steps(&self) -> u64 {

@@ -2,10 +2,10 @@
 //! weight publishing do not care which one runs (and a third, standalone QRRL, fits).
 
 mod a2c;
-pub(crate) mod saver;
+mod saver;
 
 pub use a2c::A2c;
-pub use saver::{Saver, SaverLosses};
+pub use saver::{saver_actor_losses, tau_tensors, Saver, SaverLosses};
 
 use crate::config::{Algo, RunConfig};
 use crate::nets::Pcpn;
@@ -30,7 +30,7 @@ pub trait Algorithm: Send {
     /// The agent's weights (`agent.*`), what actors need.
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>>;
     /// Everything a checkpoint needs: every trainable tensor and the optimiser slots.
-    fn state_tensors(&self) -> Vec<(String, Tensor)>;
+    fn state_tensors(&self) -> Result<Vec<(String, Tensor)>>;
     /// Optimiser steps taken.
     fn optimizer_steps(&self) -> u64;
     /// Restores what [`Algorithm::state_tensors`] saved.
@@ -73,3 +73,6 @@ pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
         Err(CoreError::Diverged(format!("{name} is {v}")))
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -198,14 +198,14 @@ impl Algorithm for Saver {
     }
 
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
-        checkpoint::to_named_all(&self.agent.params().tensors())
+        checkpoint::to_named_all(&self.agent.params().tensors()?)
     }
 
-    fn state_tensors(&self) -> Vec<(String, Tensor)> {
-        let mut t = self.agent.params().tensors();
-        t.extend(self.critic.params().tensors());
+    fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
+        let mut t = self.agent.params().tensors()?;
+        t.extend(self.critic.params().tensors()?);
         t.extend(self.opt.slots());
-        t
+        Ok(t)
     }
 
     fn optimizer_steps(&self) -> u64 {

@@ -75,9 +75,9 @@ impl EnvSpec {
     /// Validates the dimension for the kind.
     pub fn new(kind: EnvKind, dim: usize) -> Result<Self> {
         match kind {
-            EnvKind::Angle if dim == 0 || dim % 2 != 0 => Err(CoreError::Config(format!(
-                "dim: angle needs an even dimension >= 2, got {dim}"
-            ))),
+            EnvKind::Angle if dim == 0 || !dim.is_multiple_of(2) => Err(CoreError::Config(
+                format!("dim: angle needs an even dimension >= 2, got {dim}"),
+            )),
             EnvKind::Select if dim == 0 => Err(CoreError::Config(
                 "dim: select needs a dimension >= 1, got 0".into(),
             )),

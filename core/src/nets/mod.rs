@@ -76,11 +76,12 @@ impl ParamSet {
         Ok(t)
     }
 
-    /// The variables' current values as plain named tensors.
-    pub fn tensors(&self) -> Vec<(String, Tensor)> {
+    /// A snapshot of the variables' current values as plain named tensors (copies: a
+    /// later optimiser step, which writes the variables in place, does not change them).
+    pub fn tensors(&self) -> Result<Vec<(String, Tensor)>> {
         self.vars
             .iter()
-            .map(|(n, v)| (n.clone(), v.as_detached_tensor()))
+            .map(|(n, v)| Ok((n.clone(), v.as_tensor().copy()?.detach())))
             .collect()
     }
 

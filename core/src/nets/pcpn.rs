@@ -130,15 +130,15 @@ impl Pcpn {
         })
     }
 
-    /// The weights as named tensors (for saving).
-    pub fn tensors(&self) -> Vec<(String, Tensor)> {
+    /// A snapshot of the weights as named tensors (copies, for saving and comparing).
+    pub fn tensors(&self) -> Result<Vec<(String, Tensor)>> {
         let all = [
             &self.l0.w, &self.l0.b, &self.l1.w, &self.l1.b, &self.w2, &self.b2, &self.w3, &self.b3,
         ];
         PCPN_NAMES
             .iter()
             .zip(all)
-            .map(|(n, t)| (n.to_string(), t.detach()))
+            .map(|(n, t)| Ok((n.to_string(), t.copy()?.detach())))
             .collect()
     }
 
