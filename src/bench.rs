@@ -41,8 +41,8 @@ pub struct BenchArgs {
 /// of the bench start.
 fn set_threads(n: Option<usize>) {
     match n {
-        Some(n) => std::env::set_var("CANDLE_NUM_THREADS", n.to_string()),
-        None => std::env::remove_var("CANDLE_NUM_THREADS"),
+        Some(n) => std::env::set_var("RAYON_NUM_THREADS", n.to_string()),
+        None => std::env::set_var("RAYON_NUM_THREADS", "1"),
     }
 }
 

@@ -2,10 +2,13 @@
 //! weight publishing do not care which one runs (and a third, standalone QRRL, fits).
 
 mod a2c;
+mod kernels;
 mod saver;
+mod saver_grad;
 
 pub use a2c::A2c;
-pub use saver::{saver_actor_losses, tau_tensors, Saver, SaverLosses};
+pub use saver::{saver_actor_losses, tau_tensors, GradPath, Saver, SaverLosses};
+pub use saver_grad::{policy_grads, InputGrad, PcpnGrad};
 
 use crate::config::{Algo, RunConfig};
 use crate::nets::Pcpn;

@@ -5,6 +5,7 @@
 //! L_mon = λ_mon · 2K · mean_{B·K·K·d} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
+use super::saver_grad::{policy_grads, PcpnGrad};
 use super::{check_finite, matrix, policy_diagnostics, Algorithm, UpdateStats};
 use crate::config::{RunConfig, SaverConfig};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
@@ -33,8 +34,11 @@ pub struct Saver {
     agent: Agent,
     /// The vector critic.
     critic: Critic,
-    /// The frozen PCPN (plain tensors: no gradient ever reaches its weights).
-    pcpn: Pcpn,
+    /// The frozen PCPN (plain tensors: no gradient ever reaches its weights), with the
+    /// transposed weights of the hand-written backward pass.
+    pcpn: PcpnGrad,
+    /// Which agent-gradient implementation runs.
+    path: GradPath,
     /// One optimiser over agent and critic variables.
     opt: Optimizer,
     /// The τ stream.
@@ -47,6 +51,15 @@ pub struct Saver {
     cfg: SaverConfig,
     /// Device.
     dev: Device,
+}
+
+/// How the agent's gradient through the PCPN is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GradPath {
+    /// Hand-written forward and input-gradient of the frozen PCPN (the default).
+    Fast,
+    /// candle autograd through the whole graph (the reference the fast path is tested against).
+    Reference,
 }
 
 /// The two agent-side loss terms of one batch (scalars).
@@ -113,7 +126,8 @@ impl Saver {
         Ok(Self {
             agent,
             critic,
-            pcpn,
+            pcpn: PcpnGrad::new(pcpn)?,
+            path: GradPath::Fast,
             opt,
             rng: rng_for(config.seed, streams::LEARNER),
             layout,
@@ -125,7 +139,12 @@ impl Saver {
 
     /// The frozen PCPN.
     pub fn pcpn(&self) -> &Pcpn {
-        &self.pcpn
+        self.pcpn.pcpn()
+    }
+
+    /// Chooses the agent-gradient implementation.
+    pub fn set_grad_path(&mut self, path: GradPath) {
+        self.path = path;
     }
 }
 
@@ -171,25 +190,44 @@ impl Algorithm for Saver {
         let (tau, cos) = tau_tensors(&taus, d, b, k, &self.dev)?;
         let mu = out.mu.narrow(0, 0, b)?;
         let log_std = out.log_std.narrow(0, 0, b)?;
-        let losses = saver_actor_losses(
-            &self.pcpn,
-            &obs_all.narrow(0, 0, b)?,
-            &mu,
-            &log_std,
-            &matrix(&batch.state_delta, b, d, &self.dev)?,
-            &advantage,
-            &tau,
-            &cos,
-            &self.cfg,
-        )?;
-        let loss = ((&losses.actor + &losses.mon)? + &critic_loss)?;
+        let obs = obs_all.narrow(0, 0, b)?;
+        let (actor, mon, agent_loss) = match self.path {
+            GradPath::Fast => {
+                // dL/dμ and dL/dlog σ by hand, then the surrogate Σ μ·dμ + Σ log σ·dlog σ
+                // carries them into the agent through autograd.
+                let x = Tensor::cat(&[&obs, &mu, &log_std], 1)?.detach();
+                let adv: Vec<f32> = advantage.flatten_all()?.to_vec1()?;
+                let g =
+                    self.pcpn
+                        .input_grad(&x, &batch.state_delta, &adv, &taus, &cos, &self.cfg)?;
+                let (dmu, dls) = policy_grads(&g.dx, o, self.layout.mu_dim())?;
+                let surrogate = ((&mu * dmu)?.sum_all()? + (&log_std * dls)?.sum_all()?)?;
+                (g.actor_loss, g.mon_loss, surrogate)
+            }
+            GradPath::Reference => {
+                let l = saver_actor_losses(
+                    self.pcpn.pcpn(),
+                    &obs,
+                    &mu,
+                    &log_std,
+                    &matrix(&batch.state_delta, b, d, &self.dev)?,
+                    &advantage,
+                    &tau,
+                    &cos,
+                    &self.cfg,
+                )?;
+                let (a, m) = (l.actor.to_scalar::<f32>()?, l.mon.to_scalar::<f32>()?);
+                (a, m, (l.actor + l.mon)?)
+            }
+        };
+        let loss = (agent_loss + &critic_loss)?;
         let grads = loss.backward()?;
         self.opt.step(&grads)?;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         Ok(UpdateStats {
             values: vec![
-                check_finite("actor_loss", losses.actor.to_scalar::<f32>()?)?,
-                check_finite("mon_loss", losses.mon.to_scalar::<f32>()?)?,
+                check_finite("actor_loss", actor)?,
+                check_finite("mon_loss", mon)?,
                 check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
                 mu_abs_max,
                 log_std_mean,

@@ -21,19 +21,19 @@ pub const PCPN_HEAD_HIDDEN: usize = 64;
 #[derive(Clone)]
 pub struct Pcpn {
     /// x → 256.
-    l0: Linear,
+    pub(crate) l0: Linear,
     /// 256 → d·128.
-    l1: Linear,
+    pub(crate) l1: Linear,
     /// [d, 128, 64]: per-dim first head layer.
-    w2: Tensor,
+    pub(crate) w2: Tensor,
     /// [d, 1, 64].
-    b2: Tensor,
+    pub(crate) b2: Tensor,
     /// [d, 64, 1]: per-dim output layer.
-    w3: Tensor,
+    pub(crate) w3: Tensor,
     /// [d, 1, 1].
-    b3: Tensor,
+    pub(crate) b3: Tensor,
     /// d.
-    dim: usize,
+    pub(crate) dim: usize,
 }
 
 /// Names of the PCPN tensors, in the order of [`pcpn_shapes`].
