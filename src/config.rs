@@ -76,6 +76,21 @@ pub struct RunArgs {
     /// PCPN pretraining learning rate (default: 0.1 × the SAVER rate).
     #[arg(long)]
     pub pretrain_lr: Option<f64>,
+    /// Bound the policy mean: μ = bound·tanh(raw) (default: unbounded, as the paper).
+    #[arg(long)]
+    pub mu_bound: Option<f64>,
+    /// Lower clamp of log σ (needs --log-std-max too).
+    #[arg(long, requires = "log_std_max")]
+    pub log_std_min: Option<f64>,
+    /// Upper clamp of log σ (needs --log-std-min too).
+    #[arg(long, requires = "log_std_min")]
+    pub log_std_max: Option<f64>,
+    /// SAVER: normalise the vector advantage per dimension over each batch.
+    #[arg(long)]
+    pub adv_norm: Option<bool>,
+    /// Clip each update's global gradient norm to this.
+    #[arg(long)]
+    pub grad_clip: Option<f64>,
 }
 
 /// The same settings as a TOML file; unknown keys are errors.
@@ -99,6 +114,11 @@ struct FileConfig {
     lambda_mon: Option<f64>,
     pretrain_batches: Option<u64>,
     pretrain_lr: Option<f64>,
+    mu_bound: Option<f64>,
+    log_std_min: Option<f64>,
+    log_std_max: Option<f64>,
+    adv_norm: Option<bool>,
+    grad_clip: Option<f64>,
 }
 
 /// `saver train` flags.
@@ -189,6 +209,20 @@ impl RunArgs {
         if let Some(v) = pick!(pretrain_lr) {
             c.pretrain.lr = v;
         }
+        if let Some(v) = pick!(mu_bound) {
+            c.head.mu_bound = Some(v);
+        }
+        match (pick!(log_std_min), pick!(log_std_max)) {
+            (Some(lo), Some(hi)) => c.head.log_std_bounds = Some((lo, hi)),
+            (None, None) => {}
+            _ => bail!("log_std_min and log_std_max: set both or neither"),
+        }
+        if let Some(v) = pick!(adv_norm) {
+            c.saver.adv_norm = v;
+        }
+        if let Some(v) = pick!(grad_clip) {
+            c.grad_clip = Some(v);
+        }
         c.validate()?;
         Ok(c)
     }
@@ -224,6 +258,16 @@ pub fn to_toml(c: &RunConfig) -> String {
     if let Some(k) = c.saver.kappa {
         s.push_str(&format!("kappa = {k:?}\n"));
     }
+    if let Some(b) = c.head.mu_bound {
+        s.push_str(&format!("mu_bound = {b:?}\n"));
+    }
+    if let Some((lo, hi)) = c.head.log_std_bounds {
+        s.push_str(&format!("log_std_min = {lo:?}\nlog_std_max = {hi:?}\n"));
+    }
+    s.push_str(&format!("adv_norm = {}\n", c.saver.adv_norm));
+    if let Some(g) = c.grad_clip {
+        s.push_str(&format!("grad_clip = {g:?}\n"));
+    }
     s
 }
 
@@ -240,6 +284,11 @@ mod tests {
             kappa: Some(0.01),
             optimizer: Some("adam".into()),
             seed: Some(9),
+            mu_bound: Some(1.0),
+            log_std_min: Some(-4.0),
+            log_std_max: Some(0.0),
+            adv_norm: Some(true),
+            grad_clip: Some(0.5),
             ..Default::default()
         };
         let c = args.resolve().unwrap();

@@ -152,7 +152,7 @@ pub fn run_actor(
             Err(LinkError::Closed(_)) => break,
             Err(e) => return Err(e.into()),
         };
-        let mut policy = Policy::new(weights, layout)?;
+        let mut policy = Policy::new(weights, layout, assignment.config.head)?;
         let rollout = actor.collect(&mut policy);
         summary.steps += (rollout.n_envs * rollout.n_steps) as u64;
         summary.episodes += rollout.episodes.len() as u64;

@@ -3,6 +3,7 @@
 //! paper (SPEC.md).
 
 use crate::env::{EnvKind, EnvSpec};
+use crate::nets::HeadConfig;
 use crate::optim::OptimizerConfig;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
@@ -48,6 +49,9 @@ pub struct SaverConfig {
     pub lambda_mon: f64,
     /// λ_c, weight of the vector critic's squared error.
     pub lambda_critic: f64,
+    /// Normalise the vector advantage per dimension over the batch (zero mean, unit
+    /// std); the paper does not.
+    pub adv_norm: bool,
 }
 
 /// PCPN pretraining settings.
@@ -86,6 +90,10 @@ pub struct RunConfig {
     pub lr: f64,
     /// Optimiser and its constants.
     pub optimizer: OptimizerConfig,
+    /// Clip the global gradient norm of each update to this (the paper: no clipping).
+    pub grad_clip: Option<f64>,
+    /// Bounds of the policy's μ and log σ (the paper: none).
+    pub head: HeadConfig,
     /// Episode step limit (hitting it is terminal, as in the paper's code).
     pub max_episode_steps: u32,
     /// A2C value-loss weight.
@@ -131,6 +139,8 @@ impl RunConfig {
             gamma: 0.99,
             lr,
             optimizer: OptimizerConfig::RMSPROP_TF1,
+            grad_clip: None,
+            head: HeadConfig::FAITHFUL,
             max_episode_steps: 1000,
             value_coef: 0.5,
             saver: SaverConfig {
@@ -138,6 +148,7 @@ impl RunConfig {
                 kappa: None,
                 lambda_mon: 1.0,
                 lambda_critic: 0.5,
+                adv_norm: false,
             },
             pretrain: PretrainConfig {
                 batches: paper_pretrain_batches(env.kind),
@@ -176,6 +187,21 @@ impl RunConfig {
             }
         }
         self.optimizer.validate()?;
+        if let Some(c) = self.grad_clip {
+            if !(c.is_finite() && c > 0.0) {
+                return bad("grad_clip", format!("{c} must be > 0"));
+            }
+        }
+        if let Some(b) = self.head.mu_bound {
+            if !(b.is_finite() && b > 0.0) {
+                return bad("mu_bound", format!("{b} must be > 0"));
+            }
+        }
+        if let Some((lo, hi)) = self.head.log_std_bounds {
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return bad("log_std_bounds", format!("[{lo}, {hi}] is not an interval"));
+            }
+        }
         if self.max_episode_steps == 0 {
             return bad("max_episode_steps", "must be >= 1".into());
         }

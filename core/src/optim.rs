@@ -81,11 +81,23 @@ pub struct Optimizer {
     lr: f64,
     /// Steps taken (Adam's bias correction; also checkpointed).
     t: u64,
+    /// Global gradient-norm clip, if any.
+    clip: Option<f64>,
 }
 
 impl Optimizer {
     /// A fresh optimiser; slots start at their initial values.
     pub fn new(vars: Vec<(String, Var)>, config: OptimizerConfig, lr: f64) -> Result<Self> {
+        Self::with_clip(vars, config, lr, None)
+    }
+
+    /// An optimiser that first scales the gradients so their global norm is at most `clip`.
+    pub fn with_clip(
+        vars: Vec<(String, Var)>,
+        config: OptimizerConfig,
+        lr: f64,
+        clip: Option<f64>,
+    ) -> Result<Self> {
         let mut slot1 = Vec::with_capacity(vars.len());
         let mut slot2 = Vec::new();
         for (_, v) in &vars {
@@ -106,6 +118,7 @@ impl Optimizer {
             config,
             lr,
             t: 0,
+            clip,
         })
     }
 
@@ -114,10 +127,31 @@ impl Optimizer {
         self.t
     }
 
+    /// The global L2 norm of the gradients of this optimiser's variables.
+    pub fn grad_norm(&self, grads: &GradStore) -> Result<f64> {
+        let mut sq = 0.0f64;
+        for (_, v) in &self.vars {
+            if let Some(g) = grads.get(v.as_tensor()) {
+                sq += g
+                    .sqr()?
+                    .sum_all()?
+                    .to_dtype(candle_core::DType::F64)?
+                    .to_scalar::<f64>()?;
+            }
+        }
+        Ok(sq.sqrt())
+    }
+
     /// Applies one step with the gradients in `grads`; variables without a gradient
-    /// are left alone (their slots too).
-    pub fn step(&mut self, grads: &GradStore) -> Result<()> {
+    /// are left alone (their slots too). Returns the gradients' global norm (before
+    /// clipping).
+    pub fn step(&mut self, grads: &GradStore) -> Result<f64> {
         self.t += 1;
+        let norm = self.grad_norm(grads)?;
+        let scale = match self.clip {
+            Some(c) if norm > c => c / norm,
+            _ => 1.0,
+        };
         for i in 0..self.vars.len() {
             let var = &self.vars[i].1;
             let Some(g) = grads.get(var.as_tensor()) else {
@@ -125,7 +159,11 @@ impl Optimizer {
             };
             // Gradients can carry the op graph that produced them; the slots must not
             // keep it (and the previous slots) alive from step to step.
-            let g = &g.detach();
+            let g = &if scale < 1.0 {
+                (g * scale)?.detach()
+            } else {
+                g.detach()
+            };
             match self.config {
                 OptimizerConfig::Rmsprop { decay, eps, .. } => {
                     // TF1 ApplyRMSProp: ms += (g² − ms)·(1 − ρ); var −= lr·g/√(ms + ε).
@@ -148,7 +186,7 @@ impl Optimizer {
                 }
             }
         }
-        Ok(())
+        Ok(norm)
     }
 
     /// The slots as named tensors (`opt.<slot>.<var>`), for checkpoints.

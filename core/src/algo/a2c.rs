@@ -13,7 +13,13 @@ use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor, D};
 use saver_proto::NamedTensor;
 
-const STATS: &[&str] = &["policy_loss", "value_loss", "mu_abs_max", "log_std_mean"];
+const STATS: &[&str] = &[
+    "policy_loss",
+    "value_loss",
+    "mu_abs_max",
+    "log_std_mean",
+    "grad_norm",
+];
 
 /// The A2C learner state.
 pub struct A2c {
@@ -36,8 +42,13 @@ impl A2c {
     pub fn new(config: &RunConfig, dev: &Device) -> Result<Self> {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
-        let agent = Agent::new(&layout, true, &mut rng, dev)?;
-        let opt = Optimizer::new(agent.params().vars.clone(), config.optimizer, config.lr)?;
+        let agent = Agent::new(&layout, config.head, true, &mut rng, dev)?;
+        let opt = Optimizer::with_clip(
+            agent.params().vars.clone(),
+            config.optimizer,
+            config.lr,
+            config.grad_clip,
+        )?;
         Ok(Self {
             agent,
             opt,
@@ -98,7 +109,7 @@ impl Algorithm for A2c {
         let value_loss = ((value - returns)?.sqr()?.mean_all()? * self.value_coef)?;
         let loss = (&policy_loss + &value_loss)?;
         let grads = loss.backward()?;
-        self.opt.step(&grads)?;
+        let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         Ok(UpdateStats {
             values: vec![
@@ -106,6 +117,7 @@ impl Algorithm for A2c {
                 check_finite("value_loss", value_loss.to_scalar::<f32>()?)?,
                 mu_abs_max,
                 log_std_mean,
+                grad_norm,
             ],
         })
     }

@@ -26,6 +26,7 @@ const STATS: &[&str] = &[
     "critic_loss",
     "mu_abs_max",
     "log_std_mean",
+    "grad_norm",
 ];
 
 /// The SAVER learner state.
@@ -118,11 +119,11 @@ impl Saver {
     pub fn new(config: &RunConfig, pcpn: Pcpn, dev: &Device) -> Result<Self> {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
-        let agent = Agent::new(&layout, false, &mut rng, dev)?;
+        let agent = Agent::new(&layout, config.head, false, &mut rng, dev)?;
         let critic = Critic::new(&layout, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
-        let opt = Optimizer::new(vars, config.optimizer, config.lr)?;
+        let opt = Optimizer::with_clip(vars, config.optimizer, config.lr, config.grad_clip)?;
         Ok(Self {
             agent,
             critic,
@@ -183,7 +184,13 @@ impl Algorithm for Saver {
             self.gamma,
         );
         let returns = Tensor::from_vec(returns, (b, d), &self.dev)?;
-        let advantage = (&returns - &value)?.detach();
+        let mut advantage = (&returns - &value)?.detach();
+        if self.cfg.adv_norm {
+            // Per dimension over the batch: zero mean, unit standard deviation.
+            let centred = advantage.broadcast_sub(&advantage.mean_keepdim(0)?)?;
+            let std = (centred.sqr()?.mean_keepdim(0)? + 1e-8)?.sqrt()?;
+            advantage = centred.broadcast_div(&std)?;
+        }
         let critic_loss = ((value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
 
         let taus = uniform01(&mut self.rng, d * b * k);
@@ -222,7 +229,7 @@ impl Algorithm for Saver {
         };
         let loss = (agent_loss + &critic_loss)?;
         let grads = loss.backward()?;
-        self.opt.step(&grads)?;
+        let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         Ok(UpdateStats {
             values: vec![
@@ -231,6 +238,7 @@ impl Algorithm for Saver {
                 check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
                 mu_abs_max,
                 log_std_mean,
+                grad_norm,
             ],
         })
     }

@@ -85,6 +85,7 @@ impl Fixture {
                 kappa,
                 lambda_mon: 1.0,
                 lambda_critic: 0.5,
+                adv_norm: false,
             },
         };
         let mu: Vec<f64> = uniform(&mut rng, b * l.mu_dim(), -1.0, 1.0)
@@ -209,18 +210,25 @@ fn saver_update_leaves_the_pcpn_bit_identical_and_moves_agent_and_critic() {
 
 #[test]
 fn acting_policy_equals_the_training_network() {
-    for spec in [
-        EnvSpec::new(EnvKind::Angle, 4).unwrap(),
-        EnvSpec::new(EnvKind::Select, 5).unwrap(),
-        EnvSpec::new(EnvKind::Arm, 2).unwrap(),
+    let bounded = crate::nets::HeadConfig {
+        mu_bound: Some(1.0),
+        log_std_bounds: Some((-3.0, -0.5)),
+    };
+    for (spec, head) in [
+        (
+            EnvSpec::new(EnvKind::Angle, 4).unwrap(),
+            crate::nets::HeadConfig::FAITHFUL,
+        ),
+        (EnvSpec::new(EnvKind::Select, 5).unwrap(), bounded),
+        (EnvSpec::new(EnvKind::Arm, 2).unwrap(), bounded),
     ] {
         let l = spec.layout();
-        let agent = Agent::new(&l, true, &mut rng_for(3, 1), &Device::Cpu).unwrap();
+        let agent = Agent::new(&l, head, true, &mut rng_for(3, 1), &Device::Cpu).unwrap();
         let weights = PolicyWeights {
             version: 7,
             tensors: crate::checkpoint::to_named_all(&agent.params().tensors().unwrap()).unwrap(),
         };
-        let mut policy = Policy::new(Arc::new(weights), l).unwrap();
+        let mut policy = Policy::new(Arc::new(weights), l, head).unwrap();
         let obs = uniform(&mut rng_for(4, 0), 5 * l.obs_dim, -1.0, 1.0);
         let want = agent
             .forward(&Tensor::from_slice(&obs, (5, l.obs_dim), &Device::Cpu).unwrap())
@@ -270,6 +278,7 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
             kappa,
             lambda_mon: 1.0,
             lambda_critic: 0.5,
+            adv_norm: false,
         };
         let pcpn = random_pcpn(&l, DType::F32);
         let obs = uniform(&mut rng, b * l.obs_dim, -1.0, 1.0);

@@ -6,6 +6,42 @@ use crate::env::EnvLayout;
 use crate::rng::SaverRng;
 use crate::Result;
 use candle_core::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+
+/// How the agent's raw outputs become the action distribution's parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeadConfig {
+    /// μ = bound·tanh(raw) when set (keeps μ where the PCPN was pretrained: [-1, 1]);
+    /// `None`: the paper's unbounded linear mean.
+    pub mu_bound: Option<f64>,
+    /// log σ clamped into [min, max] when set (σ ~ U(0, 1) in pretraining means
+    /// log σ ≤ 0); `None`: unbounded, as in the paper.
+    pub log_std_bounds: Option<(f64, f64)>,
+}
+
+impl HeadConfig {
+    /// The paper's head: linear μ, free log σ.
+    pub const FAITHFUL: Self = Self {
+        mu_bound: None,
+        log_std_bounds: None,
+    };
+
+    /// Applies the bound to one raw mean.
+    pub fn mu(&self, raw: f32) -> f32 {
+        match self.mu_bound {
+            Some(b) => b as f32 * raw.tanh(),
+            None => raw,
+        }
+    }
+
+    /// Applies the clamp to one log σ.
+    pub fn log_std(&self, raw: f32) -> f32 {
+        match self.log_std_bounds {
+            Some((lo, hi)) => raw.clamp(lo as f32, hi as f32),
+            None => raw,
+        }
+    }
+}
 
 /// Initial log-std of every continuous action dim.
 pub const LOG_STD_INIT: f32 = -1.0;
@@ -20,6 +56,8 @@ pub struct Agent {
     log_std: Tensor,
     /// 64 → 1, A2C only.
     value: Option<Linear>,
+    /// Output bounds.
+    head: HeadConfig,
     /// Trainable variables, named `agent.*`.
     params: ParamSet,
 }
@@ -38,6 +76,7 @@ impl Agent {
     /// A freshly initialised agent; `with_value` adds the A2C value head.
     pub fn new(
         layout: &EnvLayout,
+        head: HeadConfig,
         with_value: bool,
         rng: &mut SaverRng,
         dev: &Device,
@@ -62,6 +101,7 @@ impl Agent {
             mu,
             log_std,
             value,
+            head,
             params,
         })
     }
@@ -70,11 +110,15 @@ impl Agent {
     pub fn forward(&self, obs: &Tensor) -> candle_core::Result<AgentOut> {
         let n = obs.dim(0)?;
         let h = mlp_forward(&self.trunk, obs, true)?;
-        let mu = self.mu.forward(&h)?;
-        let log_std = self
-            .log_std
-            .unsqueeze(0)?
-            .broadcast_as((n, self.log_std.dim(0)?))?;
+        let mut mu = self.mu.forward(&h)?;
+        if let Some(b) = self.head.mu_bound {
+            mu = (mu.tanh()? * b)?;
+        }
+        let mut log_std = self.log_std.clone();
+        if let Some((lo, hi)) = self.head.log_std_bounds {
+            log_std = log_std.clamp(lo as f32, hi as f32)?;
+        }
+        let log_std = log_std.unsqueeze(0)?.broadcast_as((n, log_std.dim(0)?))?;
         let value = match &self.value {
             Some(v) => Some(v.forward(&h)?.squeeze(1)?),
             None => None,

@@ -6,7 +6,7 @@ mod critic;
 mod pcpn;
 mod policy;
 
-pub use agent::{Agent, AgentOut};
+pub use agent::{Agent, AgentOut, HeadConfig};
 pub use critic::Critic;
 pub use pcpn::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
 pub use policy::{sample_softmax as sample_softmax_pub, Action, Policy};

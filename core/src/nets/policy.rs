@@ -2,7 +2,7 @@
 //! (no autograd, no allocation per step): μ = MLP(obs), a = μ + σ·N(0, 1) for the
 //! continuous dims, the choice ~ softmax(logits) as a one-hot.
 
-use super::TRUNK;
+use super::{HeadConfig, TRUNK};
 use crate::env::EnvLayout;
 use crate::link::PolicyWeights;
 use crate::rng::{normal, SaverRng};
@@ -40,13 +40,15 @@ pub struct Policy {
     log_std: usize,
     /// The env layout.
     layout: EnvLayout,
+    /// Output bounds, as in training.
+    head: HeadConfig,
     /// Scratch activations.
     buf: [Vec<f32>; 2],
 }
 
 impl Policy {
     /// Checks the weights against the layout and indexes them.
-    pub fn new(weights: Arc<PolicyWeights>, layout: EnvLayout) -> Result<Self> {
+    pub fn new(weights: Arc<PolicyWeights>, layout: EnvLayout, head: HeadConfig) -> Result<Self> {
         let find = |name: &str, shape: &[usize]| -> Result<usize> {
             let i = weights
                 .tensors
@@ -83,6 +85,7 @@ impl Policy {
             layers,
             log_std,
             layout,
+            head,
             buf: [Vec::new(), Vec::new()],
         })
     }
@@ -118,7 +121,7 @@ impl Policy {
             std::mem::swap(a, b);
         }
         mu.clear();
-        mu.extend_from_slice(a);
+        mu.extend(a.iter().map(|&m| self.head.mu(m)));
     }
 
     /// Samples an action for `obs` into `out`.
@@ -128,8 +131,13 @@ impl Policy {
         out.mu = mu;
         let c = self.layout.continuous;
         out.log_std.clear();
-        out.log_std
-            .extend_from_slice(&self.weights.tensors[self.log_std].data);
+        let head = self.head;
+        out.log_std.extend(
+            self.weights.tensors[self.log_std]
+                .data
+                .iter()
+                .map(|&l| head.log_std(l)),
+        );
         out.action.clear();
         for j in 0..c {
             out.action
