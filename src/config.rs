@@ -4,7 +4,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use saver_core::config::{Algo, RunConfig};
+use saver_core::config::{Algo, Mode, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
 use saver_core::optim::OptimizerConfig;
 use serde::Deserialize;
@@ -46,6 +46,12 @@ pub struct RunArgs {
     /// Env instances per actor.
     #[arg(long)]
     pub envs: Option<u32>,
+    /// Batching: sync (one rollout per actor per version) or async.
+    #[arg(long)]
+    pub mode: Option<String>,
+    /// Async mode: largest policy lag accepted.
+    #[arg(long)]
+    pub max_lag: Option<u64>,
     /// Rollout length n.
     #[arg(long)]
     pub rollout: Option<u32>,
@@ -104,6 +110,8 @@ struct FileConfig {
     seed: Option<u64>,
     actors: Option<u32>,
     envs: Option<u32>,
+    mode: Option<String>,
+    max_lag: Option<u64>,
     rollout: Option<u32>,
     lr: Option<f64>,
     gamma: Option<f64>,
@@ -179,6 +187,12 @@ impl RunArgs {
         if let Some(v) = pick!(envs) {
             c.envs_per_actor = v;
         }
+        if let Some(v) = pick!(mode) {
+            c.mode = Mode::parse(&v)?;
+        }
+        if let Some(v) = pick!(max_lag) {
+            c.max_lag = v;
+        }
         if let Some(v) = pick!(rollout) {
             c.rollout = v;
         }
@@ -237,6 +251,7 @@ pub fn to_toml(c: &RunConfig) -> String {
     let mut s = format!(
         "# Resolved settings of this run; `saver train --config <this file>` repeats it.\n\
          env = \"{}\"\ndim = {}\nalgo = \"{}\"\nsteps = {}\nseed = {}\nactors = {}\nenvs = {}\n\
+         mode = \"{}\"\nmax_lag = {}\n\
          rollout = {}\nlr = {:?}\ngamma = {:?}\noptimizer = \"{opt}\"\nmax_episode_steps = {}\n\
          quantiles = {}\nlambda_mon = {:?}\npretrain_batches = {}\npretrain_lr = {:?}\n",
         c.env.kind.name(),
@@ -246,6 +261,8 @@ pub fn to_toml(c: &RunConfig) -> String {
         c.seed,
         c.actors,
         c.envs_per_actor,
+        c.mode.name(),
+        c.max_lag,
         c.rollout,
         c.lr,
         c.gamma,

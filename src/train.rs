@@ -11,7 +11,7 @@ use saver_actor::run_actor;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::link::{PolicyWeights, Registration};
 use saver_core::nets::Pcpn;
-use saver_learner::{spawn_trainer, Hub, InProcessLink, MetricsRow, TrainerOutcome};
+use saver_learner::{spawn_trainer, Hub, InProcessLink, MetricsRow, TrainerHandle, TrainerOutcome};
 use saver_pcpn_trainer::PcpnStore;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -43,7 +43,8 @@ pub fn run(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-fn default_run_dir(c: &RunConfig) -> PathBuf {
+/// runs/<env>-<algo>-seed<seed>-<unix time>.
+pub fn default_run_dir(c: &RunConfig) -> PathBuf {
     let t = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map(|d| d.as_secs())
@@ -73,6 +74,71 @@ pub fn train(
     Ok(outcome)
 }
 
+/// A learner started in this process: the hub actors talk to, the trainer thread and
+/// its metrics rows.
+pub struct LocalLearner {
+    /// What actors (in-process or through the gRPC service) talk to.
+    pub hub: Arc<Hub>,
+    /// The trainer thread.
+    pub trainer: TrainerHandle,
+    /// One row per update.
+    pub rows: mpsc::Receiver<MetricsRow>,
+}
+
+/// Builds the algorithm around `pcpn` (SAVER) or none (A2C), publishes version 0 and
+/// starts the trainer thread writing into `out`.
+pub fn start_learner(
+    config: &RunConfig,
+    out: &Path,
+    pcpn: Option<Pcpn>,
+    stop: Arc<AtomicBool>,
+) -> Result<LocalLearner> {
+    let dev = saver_core::device();
+    let algo = saver_core::algo::build(config, pcpn, &dev)?;
+    let initial = PolicyWeights {
+        version: 0,
+        tensors: algo.policy_tensors()?,
+    };
+    let (hub, rx) = Hub::new(config.clone(), initial, 2 * config.actors as usize);
+    let (row_tx, rows) = mpsc::channel::<MetricsRow>();
+    let trainer = spawn_trainer(algo, hub.clone(), rx, out.to_path_buf(), Some(row_tx), stop)?;
+    Ok(LocalLearner { hub, trainer, rows })
+}
+
+/// Follows the metrics rows until training ends, showing progress when `show`, and
+/// handing each row to `each`; then joins the trainer.
+pub fn follow(
+    learner: LocalLearner,
+    config: &RunConfig,
+    show: bool,
+    mut each: impl FnMut(&MetricsRow),
+) -> Result<(Arc<Hub>, TrainerOutcome)> {
+    let label = format!("{} {}", config.algo.name(), config.env);
+    let mut progress = show.then(|| Progress::new(&label, config.steps, "steps"));
+    for row in learner.rows {
+        if let Some(p) = progress.as_mut() {
+            let len = row
+                .mean_ep_len_100
+                .map(|m| format!("{m:.0}"))
+                .unwrap_or_else(|| "-".into());
+            p.update(
+                row.steps,
+                &format!("mean ep len {len} | update {}", row.updates),
+            );
+        }
+        each(&row);
+    }
+    if let Some(p) = &progress {
+        p.finish();
+    }
+    let outcome = learner
+        .trainer
+        .join
+        .join()
+        .map_err(|_| anyhow!("the trainer thread panicked"))??;
+    Ok((learner.hub, outcome))
+}
+
 /// The embedded run proper, around a given PCPN (SAVER) or none (A2C): learner
 /// thread, actor threads over the in-process link, progress from the metrics rows.
 pub fn train_with(
@@ -82,25 +148,10 @@ pub fn train_with(
     stop: Arc<AtomicBool>,
     show: bool,
 ) -> Result<TrainerOutcome> {
-    let dev = saver_core::device();
-    let algo = saver_core::algo::build(config, pcpn, &dev)?;
-    let initial = PolicyWeights {
-        version: 0,
-        tensors: algo.policy_tensors()?,
-    };
-    let (hub, rx) = Hub::new(config.clone(), initial, 2 * config.actors as usize);
-    let (row_tx, row_rx) = mpsc::channel::<MetricsRow>();
-    let trainer = spawn_trainer(
-        algo,
-        hub.clone(),
-        rx,
-        out.to_path_buf(),
-        Some(row_tx),
-        stop.clone(),
-    )?;
+    let learner = start_learner(config, out, pcpn, stop.clone())?;
     let mut actors = Vec::new();
     for i in 0..config.actors {
-        let mut link = InProcessLink::new(hub.clone());
+        let mut link = InProcessLink::new(learner.hub.clone());
         let stop = stop.clone();
         let reg = Registration {
             name: format!("embedded-{i}"),
@@ -113,27 +164,7 @@ pub fn train_with(
                 .spawn(move || run_actor(&mut link, &reg, &stop))?,
         );
     }
-    let label = format!("{} {}", config.algo.name(), config.env);
-    let mut progress = show.then(|| Progress::new(&label, config.steps, "steps"));
-    for row in row_rx {
-        if let Some(p) = progress.as_mut() {
-            let len = row
-                .mean_ep_len_100
-                .map(|m| format!("{m:.0}"))
-                .unwrap_or_else(|| "-".into());
-            p.update(
-                row.steps,
-                &format!("mean ep len {len} | update {}", row.updates),
-            );
-        }
-    }
-    if let Some(p) = &progress {
-        p.finish();
-    }
-    let outcome = trainer
-        .join
-        .join()
-        .map_err(|_| anyhow!("the trainer thread panicked"))??;
+    let (hub, outcome) = follow(learner, config, show, |_| {})?;
     hub.close("run over");
     for a in actors {
         match a.join() {
@@ -145,7 +176,8 @@ pub fn train_with(
     Ok(outcome)
 }
 
-fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
+/// Prints the run's summary and where its outputs went.
+pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
     let len = o
         .mean_ep_len_100
         .map(|m| format!("{m:.1}"))

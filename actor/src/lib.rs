@@ -1,7 +1,9 @@
 //! saver-actor: steps N env instances with the newest policy and ships rollouts
 //! through a [`LearnerLink`] (in-process or gRPC — the actor does not know which).
 
-use saver_core::config::RunConfig;
+pub mod grpc;
+
+use saver_core::config::{Mode, RunConfig};
 use saver_core::env::{Env, EnvLayout};
 use saver_core::link::{Assignment, LearnerLink, LinkError, Registration};
 use saver_core::nets::{Action, Policy};
@@ -135,7 +137,8 @@ impl Actor {
 }
 
 /// Registers through `link` and acts until the learner closes or `stop` is set.
-/// Sync mode: after each rollout the actor waits for the next version.
+/// Sync mode: after each rollout the actor waits for the next version; async mode: it
+/// goes on with the newest weights it has.
 pub fn run_actor(
     link: &mut dyn LearnerLink,
     reg: &Registration,
@@ -161,7 +164,10 @@ pub fn run_actor(
             Err(LinkError::Closed(_)) => break,
             Err(e) => return Err(e.into()),
         }
-        want = policy.version() + 1;
+        want = match assignment.config.mode {
+            Mode::Sync => policy.version() + 1,
+            Mode::Async => policy.version(),
+        };
     }
     Ok(summary)
 }

@@ -38,6 +38,37 @@ impl Algo {
     }
 }
 
+/// How the learner forms batches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// One rollout per registered actor at the current version, in actor-id order
+    /// (exact on-policy A2C/SAVER, repeatable bit for bit).
+    Sync,
+    /// An update on every `actors` rollouts whose version lag is at most `max_lag`.
+    Async,
+}
+
+impl Mode {
+    /// Parses `sync` or `async`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "sync" => Ok(Self::Sync),
+            "async" => Ok(Self::Async),
+            other => Err(CoreError::Config(format!(
+                "mode: unknown mode {other:?} (expected sync or async)"
+            ))),
+        }
+    }
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Sync => "sync",
+            Self::Async => "async",
+        }
+    }
+}
+
 /// SAVER's loss constants.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SaverConfig {
@@ -78,8 +109,13 @@ pub struct RunConfig {
     pub steps: u64,
     /// Base seed: weights, tau draws and actor streams derive from it.
     pub seed: u64,
-    /// Number of actors.
+    /// Number of actors (sync: the learner waits for this many before the first
+    /// update; async: rollouts per update).
     pub actors: u32,
+    /// Batch formation.
+    pub mode: Mode,
+    /// Async mode: largest accepted policy lag (versions behind the learner).
+    pub max_lag: u64,
     /// Env instances per actor.
     pub envs_per_actor: u32,
     /// Rollout length n.
@@ -134,6 +170,8 @@ impl RunConfig {
             steps,
             seed: 0,
             actors: 16,
+            mode: Mode::Sync,
+            max_lag: 4,
             envs_per_actor: 1,
             rollout: 8,
             gamma: 0.99,

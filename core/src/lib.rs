@@ -19,6 +19,7 @@ pub mod pretrain;
 pub mod returns;
 pub mod rng;
 pub mod rollout;
+pub mod wire;
 
 pub use error::{CoreError, Result};
 

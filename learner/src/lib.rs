@@ -4,6 +4,7 @@
 //! version as one shared buffer. The embedded run reaches the hub through
 //! [`InProcessLink`]; the gRPC service will reach the same hub over the network.
 
+pub mod grpc;
 mod hub;
 mod inproc;
 pub mod metrics;

@@ -72,6 +72,12 @@ pub struct MetricsRow {
     pub mean_ep_len_100_actor0: Option<f64>,
     /// Episodes finished so far.
     pub episodes: u64,
+    /// Mean policy lag of this update's rollouts (0 in sync mode).
+    pub lag_mean: f64,
+    /// Largest policy lag of this update's rollouts.
+    pub lag_max: u64,
+    /// Rollouts dropped so far for being too stale (or duplicates).
+    pub stale_dropped: u64,
     /// The algorithm's losses and diagnostics.
     pub stats: Vec<f32>,
 }
@@ -92,7 +98,8 @@ impl MetricsCsv {
         let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
         write!(
             out,
-            "steps,updates,wall_s,steps_per_s,mean_ep_len_100,mean_ep_len_100_actor0,episodes"
+            "steps,updates,wall_s,steps_per_s,mean_ep_len_100,mean_ep_len_100_actor0,episodes,\
+             lag_mean,lag_max,stale_dropped"
         )?;
         for n in stat_names {
             write!(out, ",{n}")?;
@@ -105,14 +112,17 @@ impl MetricsCsv {
     pub fn write(&mut self, r: &MetricsRow) -> std::io::Result<()> {
         write!(
             self.out,
-            "{},{},{:.3},{:.1},{},{},{}",
+            "{},{},{:.3},{:.1},{},{},{},{:.2},{},{}",
             r.steps,
             r.updates,
             r.wall_s,
             r.steps_per_s,
             opt(r.mean_ep_len_100),
             opt(r.mean_ep_len_100_actor0),
-            r.episodes
+            r.episodes,
+            r.lag_mean,
+            r.lag_max,
+            r.stale_dropped
         )?;
         for v in &r.stats {
             write!(self.out, ",{v:e}")?;

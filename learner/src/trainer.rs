@@ -6,6 +6,7 @@ use crate::metrics::{EpisodeWindow, MetricsCsv, MetricsRow};
 use crate::Hub;
 use saver_core::algo::Algorithm;
 use saver_core::checkpoint;
+use saver_core::config::Mode;
 use saver_core::link::PolicyWeights;
 use saver_core::rollout::{Batch, Rollout};
 use saver_core::{CoreError, Result};
@@ -80,6 +81,16 @@ struct Trainer {
     stop: Arc<AtomicBool>,
 }
 
+/// The rollouts of one update and their policy lag.
+struct Round {
+    /// In batch order.
+    rollouts: Vec<Rollout>,
+    /// Mean versions behind the learner.
+    lag_mean: f64,
+    /// Largest lag.
+    lag_max: u64,
+}
+
 /// Counters saved in checkpoints.
 struct Counters {
     version: u64,
@@ -106,7 +117,12 @@ impl Trainer {
         let mut interrupted = wait.is_err();
         let start = Instant::now();
         while !interrupted && c.steps < config.steps {
-            let Some(round) = self.collect_round(c.version, &mut stale_dropped) else {
+            let Some(Round {
+                rollouts: round,
+                lag_mean,
+                lag_max,
+            }) = self.collect_round(c.version, &mut stale_dropped)
+            else {
                 interrupted = true;
                 break;
             };
@@ -133,6 +149,9 @@ impl Trainer {
                 mean_ep_len_100: window.mean_all(),
                 mean_ep_len_100_actor0: window.mean_actor0(),
                 episodes: window.total,
+                lag_mean,
+                lag_max,
+                stale_dropped,
                 stats: stats.values,
             };
             csv.write(&row).map_err(|e| io("writing metrics.csv", e))?;
@@ -154,29 +173,57 @@ impl Trainer {
         })
     }
 
-    /// One rollout from each registered actor at `version`, in actor-id order; `None`
-    /// when asked to stop or when every sender is gone.
-    fn collect_round(&mut self, version: u64, stale: &mut u64) -> Option<Vec<Rollout>> {
-        let mut pending: BTreeMap<u32, Rollout> = BTreeMap::new();
+    /// The rollouts of the next update; `None` when asked to stop or when every sender
+    /// is gone. Sync: one from each registered actor at `version`, in actor-id order.
+    /// Async: the next `actors` rollouts whose lag is at most `max_lag`, ordered by
+    /// (actor id, sequence number).
+    fn collect_round(&mut self, version: u64, stale: &mut u64) -> Option<Round> {
+        let config = self.hub.config();
+        let (mode, want, max_lag) = (config.mode, config.actors as usize, config.max_lag);
+        let mut pending: BTreeMap<(u32, u64), Rollout> = BTreeMap::new();
         loop {
-            let expected = self.hub.actors().len();
+            let expected = match mode {
+                Mode::Sync => self.hub.actors().len(),
+                Mode::Async => want,
+            };
             if expected > 0 && pending.len() >= expected {
-                return Some(pending.into_values().collect());
+                let rollouts: Vec<Rollout> = pending.into_values().collect();
+                let lags: Vec<u64> = rollouts
+                    .iter()
+                    .map(|r| version - r.policy_version)
+                    .collect();
+                return Some(Round {
+                    lag_mean: lags.iter().sum::<u64>() as f64 / lags.len() as f64,
+                    lag_max: lags.into_iter().max().unwrap_or(0),
+                    rollouts,
+                });
             }
             if self.stop.load(Ordering::Relaxed) || self.hub.is_closed() {
                 return None;
             }
             match self.rx.recv_timeout(Duration::from_millis(50)) {
-                Ok(r) if r.policy_version != version => {
-                    *stale += 1;
-                    tracing::debug!(
-                        actor = r.actor_id,
-                        v = r.policy_version,
-                        "stale rollout dropped"
-                    );
-                }
                 Ok(r) => {
-                    if pending.insert(r.actor_id, r).is_some() {
+                    let fresh = match mode {
+                        Mode::Sync => r.policy_version == version,
+                        Mode::Async => {
+                            r.policy_version <= version && version - r.policy_version <= max_lag
+                        }
+                    };
+                    if !fresh {
+                        *stale += 1;
+                        tracing::debug!(
+                            actor = r.actor_id,
+                            v = r.policy_version,
+                            version,
+                            "stale rollout dropped"
+                        );
+                        continue;
+                    }
+                    let key = match mode {
+                        Mode::Sync => (r.actor_id, 0),
+                        Mode::Async => (r.actor_id, r.seq),
+                    };
+                    if pending.insert(key, r).is_some() {
                         *stale += 1;
                     }
                 }

@@ -1,6 +1,16 @@
-//! saver-proto: what crosses a process boundary. Weights, checkpoints and PCPNs travel
-//! as safetensors bytes (f32, little endian, with a string metadata map), so a client in
-//! any language decodes them with the safetensors package alone.
+//! saver-proto: what crosses a process boundary. The gRPC protocol generated from
+//! `saver.proto` ([`pb`]); weights, checkpoints and PCPNs travel as safetensors bytes
+//! (f32, little endian, with a string metadata map), so a client in any language decodes
+//! them with the safetensors package alone.
+
+/// Generated gRPC messages, clients and servers (package `saver.v1`).
+#[allow(missing_docs, clippy::all)]
+pub mod pb {
+    tonic::include_proto!("saver.v1");
+}
+
+/// Largest gRPC message either side accepts (weights of d = 16 nets are ~1 MiB).
+pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
 
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;

@@ -1,0 +1,202 @@
+//! [`LearnerLink`] over gRPC: the actor's side of saver.proto. The actor stays a plain
+//! blocking loop; a small tokio runtime inside the link drives the streams.
+
+use saver_core::config::RunConfig;
+use saver_core::link::{Assignment, LearnerLink, LinkError, PolicyWeights, Registration};
+use saver_core::rollout::Rollout;
+use saver_proto::pb;
+use saver_proto::pb::learner_client::LearnerClient;
+use std::sync::Arc;
+use tokio::sync::{mpsc, watch};
+use tokio_stream::StreamExt;
+use tonic::transport::Channel;
+
+/// A connection to a learner.
+pub struct GrpcLink {
+    /// Drives the streams (one worker thread).
+    rt: tokio::runtime::Runtime,
+    /// The generated client.
+    client: LearnerClient<Channel>,
+    /// Rollouts into the open StreamRollouts call.
+    rollouts: Option<mpsc::Sender<pb::Rollout>>,
+    /// Newest weights from WatchWeights, decoded.
+    weights: Option<watch::Receiver<Option<Arc<PolicyWeights>>>>,
+    /// Set when a stream ends: the reason the next call fails with.
+    closed: watch::Receiver<Option<String>>,
+    /// Its sender, handed to the stream tasks.
+    closed_tx: watch::Sender<Option<String>>,
+}
+
+fn status_error(s: tonic::Status) -> LinkError {
+    match s.code() {
+        tonic::Code::InvalidArgument
+        | tonic::Code::FailedPrecondition
+        | tonic::Code::Unauthenticated => LinkError::Rejected(s.message().to_string()),
+        _ => LinkError::Closed(format!("{}: {}", s.code(), s.message())),
+    }
+}
+
+/// Decodes a Weights message.
+pub fn decode_weights(w: &pb::Weights) -> Result<PolicyWeights, LinkError> {
+    let (tensors, _) = saver_proto::decode(&w.safetensors)
+        .map_err(|e| LinkError::Rejected(format!("weights v{}: {e}", w.version)))?;
+    Ok(PolicyWeights {
+        version: w.version,
+        tensors,
+    })
+}
+
+impl GrpcLink {
+    /// Connects to `url` (e.g. `http://127.0.0.1:50051`).
+    pub fn connect(url: &str) -> Result<Self, LinkError> {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .map_err(|e| LinkError::Closed(format!("starting the link runtime: {e}")))?;
+        let endpoint = Channel::from_shared(url.to_string())
+            .map_err(|e| LinkError::Rejected(format!("learner address {url:?}: {e}")))?;
+        let channel = rt
+            .block_on(endpoint.connect())
+            .map_err(|e| LinkError::Closed(format!("connecting to {url}: {e}")))?;
+        let client = LearnerClient::new(channel)
+            .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
+        let (closed_tx, closed) = watch::channel(None);
+        Ok(Self {
+            rt,
+            client,
+            rollouts: None,
+            weights: None,
+            closed,
+            closed_tx,
+        })
+    }
+
+    fn closed_reason(&self) -> Option<String> {
+        self.closed.borrow().clone()
+    }
+
+    /// Opens the rollout and weight streams (after registration).
+    fn open_streams(&mut self) -> Result<(), LinkError> {
+        let mut client = self.client.clone();
+        let (tx, rx) = mpsc::channel::<pb::Rollout>(4);
+        let closed = self.closed_tx.clone();
+        let acks = self
+            .rt
+            .block_on(client.stream_rollouts(tokio_stream::wrappers::ReceiverStream::new(rx)))
+            .map_err(status_error)?
+            .into_inner();
+        self.rt.spawn(async move {
+            let mut acks = acks;
+            while let Some(a) = acks.next().await {
+                match a {
+                    Ok(a) if !a.accepted => {
+                        tracing::warn!("rollout {} rejected: {}", a.seq, a.error)
+                    }
+                    Ok(_) => {}
+                    Err(s) => {
+                        let _ = closed.send(Some(format!("rollout stream: {}", s.message())));
+                        return;
+                    }
+                }
+            }
+            let _ = closed.send(Some("the learner closed the rollout stream".into()));
+        });
+        let stream = self
+            .rt
+            .block_on(client.watch_weights(pb::WatchRequest {}))
+            .map_err(status_error)?
+            .into_inner();
+        let (wtx, wrx) = watch::channel(None);
+        let closed = self.closed_tx.clone();
+        self.rt.spawn(async move {
+            let mut stream = stream;
+            while let Some(w) = stream.next().await {
+                match w.map_err(status_error).and_then(|w| decode_weights(&w)) {
+                    Ok(w) => {
+                        if wtx.send(Some(Arc::new(w))).is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        let _ = closed.send(Some(e.to_string()));
+                        return;
+                    }
+                }
+            }
+            let _ = closed.send(Some("the learner ended the weights stream".into()));
+        });
+        self.rollouts = Some(tx);
+        self.weights = Some(wrx);
+        Ok(())
+    }
+}
+
+impl LearnerLink for GrpcLink {
+    fn register(&mut self, reg: &Registration) -> Result<Assignment, LinkError> {
+        let mut client = self.client.clone();
+        let reply = self
+            .rt
+            .block_on(client.register(pb::RegisterRequest {
+                name: reg.name.clone(),
+                session: reg.session,
+                n_envs: reg.n_envs,
+            }))
+            .map_err(status_error)?
+            .into_inner();
+        let config: RunConfig = serde_json::from_str(&reply.config_json)
+            .map_err(|e| LinkError::Rejected(format!("the learner's config is unreadable: {e}")))?;
+        if config.hash() != reply.config_hash {
+            return Err(LinkError::Rejected(
+                "the learner's config does not match its hash (different versions?)".into(),
+            ));
+        }
+        self.open_streams()?;
+        Ok(Assignment {
+            actor_id: reply.actor_id,
+            config,
+            config_hash: reply.config_hash,
+        })
+    }
+
+    fn weights(&mut self, min_version: u64) -> Result<Arc<PolicyWeights>, LinkError> {
+        let mut rx = self
+            .weights
+            .clone()
+            .ok_or_else(|| LinkError::Rejected("register first".into()))?;
+        let mut closed = self.closed.clone();
+        self.rt.block_on(async move {
+            loop {
+                if let Some(w) = rx.borrow_and_update().clone() {
+                    if w.version >= min_version {
+                        return Ok(w);
+                    }
+                }
+                if let Some(why) = closed.borrow().clone() {
+                    return Err(LinkError::Closed(why));
+                }
+                tokio::select! {
+                    r = rx.changed() => if r.is_err() {
+                        return Err(LinkError::Closed("weights stream ended".into()));
+                    },
+                    _ = closed.changed() => {}
+                }
+            }
+        })
+    }
+
+    fn push(&mut self, rollout: Rollout) -> Result<(), LinkError> {
+        if let Some(why) = self.closed_reason() {
+            return Err(LinkError::Closed(why));
+        }
+        let tx = self
+            .rollouts
+            .clone()
+            .ok_or_else(|| LinkError::Rejected("register first".into()))?;
+        let msg = pb::Rollout::from(&rollout);
+        self.rt
+            .block_on(tx.send(msg))
+            .map_err(|_| LinkError::Closed("the rollout stream is closed".into()))
+    }
+}

@@ -1,0 +1,122 @@
+//! Conversions between the wire messages of saver.proto and the domain types. A
+//! rollout becomes a domain [`Rollout`] only here, with every length checked against
+//! its declared sizes (the learner then checks it against the env layout).
+
+use crate::env::{EnvKind, EnvLayout, EnvSpec};
+use crate::rollout::{Episode, Rollout};
+use crate::{CoreError, Result};
+use saver_proto::pb;
+
+/// Largest rollout (values over all arrays) a peer may send: far above any real one
+/// (1024 envs × 64 steps × a d = 64 layout), far below what would hurt the learner.
+pub const MAX_ROLLOUT_VALUES: usize = 16 << 20;
+
+impl From<&EnvLayout> for pb::EnvLayout {
+    fn from(l: &EnvLayout) -> Self {
+        Self {
+            obs_dim: l.obs_dim as u32,
+            continuous: l.continuous as u32,
+            choices: l.choices as u32,
+            aligned_start: l.aligned_start as u32,
+            aligned_dim: l.aligned_dim as u32,
+        }
+    }
+}
+
+impl From<&EnvSpec> for pb::EnvSpec {
+    fn from(s: &EnvSpec) -> Self {
+        Self {
+            kind: s.kind.name().to_string(),
+            dim: s.dim as u32,
+            layout: Some((&s.layout()).into()),
+        }
+    }
+}
+
+impl TryFrom<&pb::EnvSpec> for EnvSpec {
+    type Error = CoreError;
+    fn try_from(s: &pb::EnvSpec) -> Result<Self> {
+        EnvSpec::new(EnvKind::parse(&s.kind)?, s.dim as usize)
+    }
+}
+
+impl From<&Rollout> for pb::Rollout {
+    fn from(r: &Rollout) -> Self {
+        Self {
+            actor_id: r.actor_id,
+            session: r.session,
+            seq: r.seq,
+            policy_version: r.policy_version,
+            n_envs: r.n_envs as u32,
+            n_steps: r.n_steps as u32,
+            obs: r.obs.clone(),
+            mu: r.mu.clone(),
+            log_std: r.log_std.clone(),
+            actions: r.actions.clone(),
+            state_delta: r.state_delta.clone(),
+            vector_reward: r.vector_reward.clone(),
+            done: r.done.clone(),
+            episodes: r
+                .episodes
+                .iter()
+                .map(|e| pb::Episode {
+                    length: e.length,
+                    success: e.success,
+                    ret: e.ret,
+                })
+                .collect(),
+        }
+    }
+}
+
+impl TryFrom<pb::Rollout> for Rollout {
+    type Error = CoreError;
+    /// Checks sizes only; [`Rollout::validate`] checks shapes and values.
+    fn try_from(r: pb::Rollout) -> Result<Self> {
+        let total = r.obs.len()
+            + r.mu.len()
+            + r.log_std.len()
+            + r.actions.len()
+            + r.state_delta.len()
+            + r.vector_reward.len()
+            + r.done.len();
+        if total > MAX_ROLLOUT_VALUES {
+            return Err(CoreError::Data(format!(
+                "rollout carries {total} values, more than the {MAX_ROLLOUT_VALUES} allowed"
+            )));
+        }
+        let steps = r.n_envs as u64 * r.n_steps as u64;
+        if r.episodes.len() as u64 > steps {
+            return Err(CoreError::Data(format!(
+                "rollout reports {} finished episodes in {steps} env steps",
+                r.episodes.len()
+            )));
+        }
+        let actor_id = r.actor_id;
+        Ok(Self {
+            actor_id,
+            session: r.session,
+            seq: r.seq,
+            policy_version: r.policy_version,
+            n_envs: r.n_envs as usize,
+            n_steps: r.n_steps as usize,
+            obs: r.obs,
+            mu: r.mu,
+            log_std: r.log_std,
+            actions: r.actions,
+            state_delta: r.state_delta,
+            vector_reward: r.vector_reward,
+            done: r.done,
+            episodes: r
+                .episodes
+                .into_iter()
+                .map(|e| Episode {
+                    actor_id,
+                    length: e.length,
+                    success: e.success,
+                    ret: e.ret,
+                })
+                .collect(),
+        })
+    }
+}

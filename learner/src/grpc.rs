@@ -1,0 +1,295 @@
+//! The `Learner` gRPC service over a [`Hub`]: the network edge of the same hub the
+//! embedded run uses. Handlers only move bytes: blocking hub calls go to tokio's
+//! blocking pool, updates stay on the trainer thread.
+
+use crate::Hub;
+use bytes::Bytes;
+use saver_core::link::{LinkError, PolicyWeights, Registration};
+use saver_core::rollout::Rollout;
+use saver_proto::pb::learner_server::{Learner, LearnerServer};
+use saver_proto::pb::{self, RolloutAck};
+use std::collections::HashMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use tokio::sync::{mpsc, watch};
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::StreamExt;
+use tonic::{Request, Response, Status, Streaming};
+
+/// One published version, encoded once and shared by every reader.
+#[derive(Clone, Debug)]
+pub struct EncodedWeights {
+    /// Version.
+    pub version: u64,
+    /// safetensors bytes of the agent's tensors.
+    pub bytes: Bytes,
+}
+
+/// Encodes weights as safetensors with their version in the metadata.
+pub fn encode_weights(w: &PolicyWeights) -> Result<EncodedWeights, saver_proto::CodecError> {
+    let meta = HashMap::from([("version".to_string(), w.version.to_string())]);
+    Ok(EncodedWeights {
+        version: w.version,
+        bytes: Bytes::from(saver_proto::encode(&w.tensors, &meta)?),
+    })
+}
+
+/// The Learner service.
+#[derive(Clone)]
+pub struct LearnerService {
+    /// The hub it fronts.
+    hub: Arc<Hub>,
+    /// The newest encoded weights (`None` after the hub closed and the bridge ended).
+    weights: watch::Receiver<EncodedWeights>,
+    /// Extra status the trainer reports (steps, mean episode length, finished).
+    status: watch::Receiver<TrainerStatus>,
+}
+
+/// What the trainer side tells the service for `Status`.
+#[derive(Clone, Debug, Default)]
+pub struct TrainerStatus {
+    /// Env steps trained on.
+    pub steps: u64,
+    /// Mean of the last 100 episodes.
+    pub mean_ep_len_100: Option<f64>,
+    /// Rollouts dropped as stale.
+    pub stale_dropped: u64,
+    /// Training is over.
+    pub finished: bool,
+}
+
+fn link_status(e: LinkError) -> Status {
+    match e {
+        LinkError::Closed(why) => Status::unavailable(why),
+        LinkError::Rejected(why) => Status::invalid_argument(why),
+    }
+}
+
+async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> Result<T, Status> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| Status::internal(format!("learner task failed: {e}")))
+}
+
+impl LearnerService {
+    /// A service for `hub`. Starts the thread that encodes each new version once and
+    /// publishes it to every watcher; returns the status sender the trainer side feeds.
+    pub fn new(hub: Arc<Hub>) -> (Self, watch::Sender<TrainerStatus>) {
+        let first = encode_weights(&hub.latest()).unwrap_or(EncodedWeights {
+            version: 0,
+            bytes: Bytes::new(),
+        });
+        let (tx, rx) = watch::channel(first);
+        let bridge_hub = hub.clone();
+        std::thread::Builder::new()
+            .name("saver-weights-bridge".into())
+            .spawn(move || {
+                let mut next = 1;
+                while let Ok(w) = bridge_hub.wait_weights(next) {
+                    match encode_weights(&w) {
+                        Ok(e) => {
+                            if tx.send(e).is_err() {
+                                break;
+                            }
+                        }
+                        Err(e) => tracing::error!("encoding weights v{}: {e}", w.version),
+                    }
+                    next = w.version + 1;
+                }
+                // Publish the very last version too (the hub may close right after it).
+                if let Ok(e) = encode_weights(&bridge_hub.latest()) {
+                    tx.send_if_modified(|cur| {
+                        let newer = e.version > cur.version;
+                        if newer {
+                            *cur = e.clone();
+                        }
+                        newer
+                    });
+                }
+            })
+            .expect("spawning a thread");
+        let (status_tx, status_rx) = watch::channel(TrainerStatus::default());
+        (
+            Self {
+                hub,
+                weights: rx,
+                status: status_rx,
+            },
+            status_tx,
+        )
+    }
+
+    /// The tonic server for this service with the message size limits set.
+    pub fn into_server(self) -> LearnerServer<Self> {
+        LearnerServer::new(self)
+            .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
+    }
+
+    fn weights_reply(w: &EncodedWeights) -> pb::Weights {
+        pb::Weights {
+            version: w.version,
+            safetensors: w.bytes.clone(),
+        }
+    }
+}
+
+#[tonic::async_trait]
+impl Learner for LearnerService {
+    async fn register(
+        &self,
+        req: Request<pb::RegisterRequest>,
+    ) -> Result<Response<pb::RegisterReply>, Status> {
+        let r = req.into_inner();
+        let hub = self.hub.clone();
+        let reg = Registration {
+            name: r.name.chars().take(128).collect(),
+            session: r.session,
+            n_envs: r.n_envs,
+        };
+        let a = blocking(move || hub.register(&reg))
+            .await?
+            .map_err(link_status)?;
+        let config_json =
+            serde_json::to_string(&a.config).map_err(|e| Status::internal(e.to_string()))?;
+        Ok(Response::new(pb::RegisterReply {
+            actor_id: a.actor_id,
+            config_json,
+            config_hash: a.config_hash,
+            env: Some((&a.config.env).into()),
+            mode: a.config.mode.name().to_string(),
+        }))
+    }
+
+    type StreamRolloutsStream = ReceiverStream<Result<RolloutAck, Status>>;
+
+    async fn stream_rollouts(
+        &self,
+        req: Request<Streaming<pb::Rollout>>,
+    ) -> Result<Response<Self::StreamRolloutsStream>, Status> {
+        let mut inbound = req.into_inner();
+        let (tx, rx) = mpsc::channel(32);
+        let hub = self.hub.clone();
+        tokio::spawn(async move {
+            while let Some(msg) = inbound.next().await {
+                let msg = match msg {
+                    Ok(m) => m,
+                    Err(status) => {
+                        tracing::debug!("rollout stream ended: {status}");
+                        break;
+                    }
+                };
+                let seq = msg.seq;
+                let ack = match Rollout::try_from(msg) {
+                    Err(e) => {
+                        hub.stats.rejected.fetch_add(1, Ordering::Relaxed);
+                        Err(e.to_string())
+                    }
+                    Ok(r) => {
+                        let h = hub.clone();
+                        match blocking(move || h.submit(r)).await {
+                            Ok(Ok(())) => Ok(()),
+                            Ok(Err(LinkError::Closed(why))) => {
+                                let _ = tx.send(Err(Status::unavailable(why))).await;
+                                break;
+                            }
+                            Ok(Err(LinkError::Rejected(why))) => Err(why),
+                            Err(status) => Err(status.message().to_string()),
+                        }
+                    }
+                };
+                let reply = RolloutAck {
+                    seq,
+                    accepted: ack.is_ok(),
+                    error: ack.err().unwrap_or_default(),
+                };
+                if tx.send(Ok(reply)).await.is_err() {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
+    }
+
+    type WatchWeightsStream = ReceiverStream<Result<pb::Weights, Status>>;
+
+    async fn watch_weights(
+        &self,
+        _req: Request<pb::WatchRequest>,
+    ) -> Result<Response<Self::WatchWeightsStream>, Status> {
+        let mut rx = self.weights.clone();
+        let (tx, out) = mpsc::channel(1);
+        tokio::spawn(async move {
+            loop {
+                // The newest version only: a slow reader skips what it missed.
+                let reply = Self::weights_reply(&rx.borrow_and_update());
+                if tx.send(Ok(reply)).await.is_err() || rx.changed().await.is_err() {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(ReceiverStream::new(out)))
+    }
+
+    async fn get_weights(
+        &self,
+        req: Request<pb::WeightsRequest>,
+    ) -> Result<Response<pb::Weights>, Status> {
+        let min = req.into_inner().min_version;
+        let mut rx = self.weights.clone();
+        loop {
+            {
+                let w = rx.borrow_and_update();
+                if w.version >= min {
+                    return Ok(Response::new(Self::weights_reply(&w)));
+                }
+            }
+            if rx.changed().await.is_err() {
+                let w = rx.borrow();
+                return Err(Status::failed_precondition(format!(
+                    "training ended at version {}; version {min} will not exist",
+                    w.version
+                )));
+            }
+        }
+    }
+
+    async fn status(
+        &self,
+        _req: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::StatusReply>, Status> {
+        let c = self.hub.config();
+        let s = self.status.borrow().clone();
+        Ok(Response::new(pb::StatusReply {
+            version: self.weights.borrow().version,
+            steps: s.steps,
+            actors: self.hub.actors().len() as u32,
+            mode: c.mode.name().to_string(),
+            env: c.env.to_string(),
+            algo: c.algo.name().to_string(),
+            accepted: self.hub.stats.accepted.load(Ordering::Relaxed),
+            rejected: self.hub.stats.rejected.load(Ordering::Relaxed),
+            stale_dropped: s.stale_dropped,
+            mean_ep_len_100: s.mean_ep_len_100.unwrap_or(f64::NAN),
+            finished: s.finished,
+        }))
+    }
+}
+
+/// Serves the Learner service (and grpc.health.v1) on `listener` until `shutdown`.
+pub async fn serve(
+    service: LearnerService,
+    listener: tokio::net::TcpListener,
+    shutdown: impl std::future::Future<Output = ()> + Send,
+) -> Result<(), tonic::transport::Error> {
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health.set_serving::<LearnerServer<LearnerService>>().await;
+    tonic::transport::Server::builder()
+        .add_service(health_service)
+        .add_service(service.into_server())
+        .serve_with_incoming_shutdown(
+            tokio_stream::wrappers::TcpListenerStream::new(listener),
+            shutdown,
+        )
+        .await
+}
