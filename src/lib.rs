@@ -6,6 +6,7 @@ pub mod config;
 pub mod plot;
 pub mod pretrain;
 pub mod progress;
+pub mod services;
 pub mod train;
 
 /// Process-wide set-up, before any thread exists.

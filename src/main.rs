@@ -3,7 +3,7 @@
 //! measures the updates against the machine's matmul peak; `saver plot` draws curves.
 
 use clap::{Parser, Subcommand};
-use saver::{bench, config, plot, pretrain, train};
+use saver::{bench, config, plot, pretrain, services, train};
 use std::process::ExitCode;
 
 /// SAVER: state aligned vector rewards with quantile regression RL.
@@ -24,6 +24,16 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Draw learning curves of one or more run folders into a PNG.
     Plot(plot::PlotArgs),
+    /// Serve the Learner gRPC service: batches rollouts from actors, updates, publishes.
+    Learner(services::LearnerArgs),
+    /// Act for a learner over gRPC: step envs with its newest weights, stream rollouts.
+    Actor(services::ActorArgs),
+    /// Serve the PcpnStore gRPC service: pretrain and hand out PCPNs.
+    PcpnTrainer(services::PcpnTrainerArgs),
+    /// Print a learner's current weights (version, tensor names and shapes); save them.
+    Weights(services::WeightsArgs),
+    /// Exit 0 when a server answers SERVING on grpc.health.v1.
+    Healthcheck(services::HealthArgs),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +51,11 @@ fn main() -> ExitCode {
         Command::Pretrain(a) => pretrain::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Plot(a) => plot::run(a),
+        Command::Learner(a) => services::learner(a),
+        Command::Actor(a) => services::actor(a),
+        Command::PcpnTrainer(a) => services::pcpn_trainer(a),
+        Command::Weights(a) => services::weights(a),
+        Command::Healthcheck(a) => services::healthcheck(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -142,8 +142,34 @@ pub fn load_pcpn(
     wanted: &EnvSpec,
     dev: &Device,
 ) -> Result<(Pcpn, PcpnInfo), StoreError> {
+    let bytes = std::fs::read(path).map_err(|e| {
+        saver_core::CoreError::Checkpoint(format!("reading {}: {e}", path.display()))
+    })?;
+    load_pcpn_bytes(&bytes, path, wanted, dev)
+}
+
+/// Reads the env spec a PCPN file says it models (no other checks).
+pub fn spec_of(bytes: &[u8]) -> Option<EnvSpec> {
+    let (_, meta) = saver_proto::decode(bytes).ok()?;
+    serde_json::from_str(meta.get("env_spec")?).ok()
+}
+
+/// Loads the bytes of a PCPN file (`path` names it in errors and in the info), refusing
+/// one for another env spec or with a wrong hash.
+pub fn load_pcpn_bytes(
+    bytes: &[u8],
+    path: &Path,
+    wanted: &EnvSpec,
+    dev: &Device,
+) -> Result<(Pcpn, PcpnInfo), StoreError> {
     let shown = path.display().to_string();
-    let loaded = checkpoint::load(path)?;
+    let (tensors, meta) = saver_proto::decode(bytes)
+        .map_err(|e| saver_core::CoreError::Checkpoint(format!("{shown}: {e}")))?;
+    let loaded = checkpoint::Loaded {
+        tensors,
+        meta,
+        sha256: saver_proto::sha256_hex(bytes),
+    };
     let meta_err = |why: &str| StoreError::Meta {
         path: shown.clone(),
         why: why.to_string(),
