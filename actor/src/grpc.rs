@@ -6,6 +6,7 @@ use saver_core::link::{Assignment, LearnerLink, LinkError, PolicyWeights, Regist
 use saver_core::rollout::Rollout;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
+use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
 use std::sync::Arc;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::StreamExt;
@@ -78,13 +79,17 @@ impl GrpcLink {
     }
 
     /// Opens the rollout and weight streams (after registration).
-    fn open_streams(&mut self) -> Result<(), LinkError> {
+    fn open_streams(&mut self, actor_id: u32, session: u64) -> Result<(), LinkError> {
         let mut client = self.client.clone();
         let (tx, rx) = mpsc::channel::<pb::Rollout>(4);
         let closed = self.closed_tx.clone();
+        let mut req = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
+        let md = req.metadata_mut();
+        md.insert(ACTOR_ID_KEY, actor_id.into());
+        md.insert(SESSION_KEY, session.into());
         let acks = self
             .rt
-            .block_on(client.stream_rollouts(tokio_stream::wrappers::ReceiverStream::new(rx)))
+            .block_on(client.stream_rollouts(req))
             .map_err(status_error)?
             .into_inner();
         self.rt.spawn(async move {
@@ -152,7 +157,7 @@ impl LearnerLink for GrpcLink {
                 "the learner's config does not match its hash (different versions?)".into(),
             ));
         }
-        self.open_streams()?;
+        self.open_streams(reply.actor_id, reg.session)?;
         Ok(Assignment {
             actor_id: reply.actor_id,
             config,

@@ -31,6 +31,8 @@ pub struct ActorSummary {
     pub steps: u64,
     /// Episodes finished.
     pub episodes: u64,
+    /// Version of the first weights it acted with.
+    pub first_version: u64,
 }
 
 /// One actor: its envs, their current observations and episode counters.
@@ -155,6 +157,9 @@ pub fn run_actor(
             Err(LinkError::Closed(_)) => break,
             Err(e) => return Err(e.into()),
         };
+        if summary.rollouts == 0 {
+            summary.first_version = weights.version;
+        }
         let mut policy = Policy::new(weights, layout, assignment.config.head)?;
         let rollout = actor.collect(&mut policy);
         summary.steps += (rollout.n_envs * rollout.n_steps) as u64;

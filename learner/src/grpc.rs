@@ -58,6 +58,26 @@ pub struct TrainerStatus {
     pub finished: bool,
 }
 
+use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
+
+fn actor_metadata(m: &tonic::metadata::MetadataMap) -> Option<(u32, u64)> {
+    let get = |k: &str| m.get(k)?.to_str().ok()?.parse::<u64>().ok();
+    Some((u32::try_from(get(ACTOR_ID_KEY)?).ok()?, get(SESSION_KEY)?))
+}
+
+/// Unregisters an actor when its rollout stream's task ends, however it ends.
+struct Leave {
+    hub: Arc<Hub>,
+    id: u32,
+    session: u64,
+}
+
+impl Drop for Leave {
+    fn drop(&mut self) {
+        self.hub.unregister(self.id, self.session);
+    }
+}
+
 fn link_status(e: LinkError) -> Status {
     match e {
         LinkError::Closed(why) => Status::unavailable(why),
@@ -167,10 +187,18 @@ impl Learner for LearnerService {
         &self,
         req: Request<Streaming<pb::Rollout>>,
     ) -> Result<Response<Self::StreamRolloutsStream>, Status> {
+        // The actor names itself in metadata, so that it leaves the rounds when its
+        // stream closes (a sync round would otherwise wait for it forever).
+        let owner = actor_metadata(req.metadata());
         let mut inbound = req.into_inner();
         let (tx, rx) = mpsc::channel(32);
         let hub = self.hub.clone();
         tokio::spawn(async move {
+            let _leave = owner.map(|(id, session)| Leave {
+                hub: hub.clone(),
+                id,
+                session,
+            });
             while let Some(msg) = inbound.next().await {
                 let msg = match msg {
                     Ok(m) => m,

@@ -128,6 +128,21 @@ impl Hub {
         })
     }
 
+    /// Forgets an actor whose connection closed (only if `session` still matches, so
+    /// a newer registration under the same id is kept); sync rounds stop waiting for it.
+    pub fn unregister(&self, actor_id: u32, session: u64) {
+        let mut s = self.lock();
+        if s.actors
+            .get(&actor_id)
+            .is_some_and(|a| a.session == session)
+        {
+            s.actors.remove(&actor_id);
+            tracing::info!(actor_id, "actor left");
+        }
+        drop(s);
+        self.changed.notify_all();
+    }
+
     /// Registered actors, by id.
     pub fn actors(&self) -> BTreeMap<u32, ActorInfo> {
         self.lock().actors.clone()

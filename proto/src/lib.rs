@@ -9,6 +9,12 @@ pub mod pb {
     tonic::include_proto!("saver.v1");
 }
 
+/// Metadata key with which an actor names its id on StreamRollouts (so that the learner
+/// takes it out of the rounds when the stream closes).
+pub const ACTOR_ID_KEY: &str = "x-saver-actor-id";
+/// Metadata key of the actor's session on StreamRollouts.
+pub const SESSION_KEY: &str = "x-saver-session";
+
 /// Largest gRPC message either side accepts (weights of d = 16 nets are ~1 MiB).
 pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
 

@@ -7,7 +7,7 @@ use saver_actor::grpc::GrpcLink;
 use saver_actor::run_actor;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
-use saver_core::link::Registration;
+use saver_core::link::{LearnerLink, Registration};
 use saver_core::nets::Pcpn;
 use saver_learner::grpc::{serve, LearnerService};
 use saver_proto::NamedTensor;
@@ -112,4 +112,127 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
         );
         std::fs::remove_dir_all(dir).ok();
     }
+}
+
+#[test]
+fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
+    let mut config = RunConfig::paper(
+        EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        Algo::A2c,
+        60 * 3 * 8,
+    );
+    config.actors = 2;
+    let dir = temp_dir("late");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false))).unwrap();
+    let hub = learner.hub.clone();
+    let (service, _status) = LearnerService::new(hub.clone());
+    let listener = rt
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    rt.spawn(serve(service, listener, std::future::pending()));
+    let spawn_actor = |i: u64| {
+        let url = url.clone();
+        std::thread::spawn(move || {
+            let mut link = GrpcLink::connect(&url).unwrap();
+            let reg = Registration {
+                name: format!("a{i}"),
+                session: i,
+                n_envs: 1,
+            };
+            run_actor(&mut link, &reg, &AtomicBool::new(false)).unwrap()
+        })
+    };
+    let early: Vec<_> = (0..2).map(spawn_actor).collect();
+    // A probe registers, gets the newest weights and leaves: its closed stream takes it
+    // out of the rounds again.
+    let v = hub.wait_weights(10).unwrap().version;
+    let mut link = GrpcLink::connect(&url).unwrap();
+    let reg = Registration {
+        name: "probe".into(),
+        session: 99,
+        n_envs: 1,
+    };
+    assert_eq!(link.register(&reg).unwrap().actor_id, 2);
+    let first = link.weights(0).unwrap();
+    assert!(
+        first.version >= v,
+        "a late actor got version {} < {v}",
+        first.version
+    );
+    drop(link);
+    let v = hub.wait_weights(v + 5).unwrap().version;
+    let late = spawn_actor(3);
+    let (_, outcome) = follow(learner, &config, false, |_| {}).unwrap();
+    for a in early {
+        a.join().unwrap();
+    }
+    let late = late.join().unwrap();
+    assert!(
+        late.first_version >= v,
+        "the late actor started from version {}",
+        late.first_version
+    );
+    assert!(late.rollouts > 0, "the late actor never contributed");
+    assert!(outcome.steps >= config.steps);
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn async_mode_drops_rollouts_older_than_max_lag() {
+    // Async with max_lag 0: actors keep acting on the weights they hold while the
+    // learner moves on, so some rollouts arrive a version late and are dropped.
+    let mut config = RunConfig::paper(
+        EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        Algo::A2c,
+        40 * 4 * 8,
+    );
+    config.actors = 4;
+    config.mode = saver_core::config::Mode::Async;
+    config.max_lag = 0;
+    let dir = temp_dir("async");
+    let o = train_with(&config, &dir, None, Arc::new(AtomicBool::new(false)), false).unwrap();
+    assert!(o.stale_dropped > 0, "no rollout was stale");
+    let csv = std::fs::read_to_string(&o.metrics).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = header.iter().position(|h| *h == "lag_max").unwrap();
+    for line in csv.lines().skip(1) {
+        let lag: u64 = line.split(',').nth(col).unwrap().parse().unwrap();
+        assert_eq!(
+            lag, 0,
+            "an update used a rollout older than max_lag: {line}"
+        );
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
+    use saver_pcpn_trainer::service::{fetch, serve as serve_store, PcpnService};
+    let dir = temp_dir("precondition");
+    let store = saver_pcpn_trainer::PcpnStore::new(dir.join("store"));
+    // A d = 2 PCPN saved under the d = 4 file name.
+    let d2 = EnvSpec::new(EnvKind::Angle, 2).unwrap();
+    let d4 = EnvSpec::new(EnvKind::Angle, 4).unwrap();
+    let p = random_pcpn(&d2, &candle_core::Device::Cpu).unwrap();
+    let tensors = saver_core::checkpoint::to_named_all(&p.tensors().unwrap()).unwrap();
+    let info = store.save(&d2, &tensors, Default::default()).unwrap();
+    std::fs::rename(&info.path, store.path_for(&d4)).unwrap();
+
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let listener = rt
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    rt.spawn(serve_store(
+        PcpnService::new(dir.join("store")),
+        listener,
+        std::future::pending(),
+    ));
+    let config = RunConfig::paper(d4, Algo::Saver, 1);
+    let err = rt.block_on(fetch(&url, &config)).unwrap_err();
+    assert_eq!(err.code(), tonic::Code::FailedPrecondition, "{err}");
+    assert!(err.message().contains("angle-d2"), "{err}");
+    std::fs::remove_dir_all(dir).ok();
 }

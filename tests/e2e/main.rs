@@ -3,6 +3,7 @@
 mod cli;
 mod grpc;
 mod learning;
+mod processes;
 
 use std::path::PathBuf;
 

@@ -1,0 +1,146 @@
+//! The `saver` binary as separate OS processes: pcpn-trainer, learner and 4 actors on
+//! 127.0.0.1 (ports chosen by the OS), weights fetched with `saver weights`.
+
+use crate::temp_dir;
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+
+/// A child process killed when dropped (also when a test fails).
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `saver args…` and returns it with the address it reports ("… on ADDR").
+fn serve(args: &[&str]) -> (Proc, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_saver"))
+        .args(args)
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    let addr = loop {
+        let line = lines
+            .next()
+            .expect("the server exited before listening")
+            .unwrap();
+        if let Some(rest) = line.split(" on ").nth(1) {
+            break rest.split([';', ' ']).next().unwrap().to_string();
+        }
+    };
+    // Keep draining stderr so the child never blocks on a full pipe.
+    std::thread::spawn(move || for _ in lines {});
+    (Proc(child), format!("http://{addr}"))
+}
+
+fn saver(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_saver"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn learner_and_four_actor_processes_equal_the_embedded_run() {
+    let dir = temp_dir("procs");
+    let d = |p: &str| dir.join(p).display().to_string();
+    let run = [
+        "--algo",
+        "saver",
+        "--dim",
+        "2",
+        "--actors",
+        "4",
+        "--steps",
+        "640",
+        "--pretrain-batches",
+        "20",
+    ];
+    let (_store, store_url) = serve(&[
+        "pcpn-trainer",
+        "--listen",
+        "127.0.0.1:0",
+        "--store",
+        &d("store"),
+    ]);
+    let ok = saver(&["healthcheck", "--addr", &store_url]);
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+
+    let mut largs = vec!["learner", "--listen", "127.0.0.1:0", "--pcpn", &store_url];
+    let out_dir = d("grpc-run");
+    largs.extend(run);
+    largs.extend(["--out", out_dir.as_str()]);
+    let (_learner, url) = serve(&largs);
+    let actors: Vec<Proc> = (0..4)
+        .map(|_| {
+            Proc(
+                Command::new(env!("CARGO_BIN_EXE_saver"))
+                    .args(["actor", "--learner", &url])
+                    .stdout(Stdio::null())
+                    .stderr(Stdio::null())
+                    .spawn()
+                    .unwrap(),
+            )
+        })
+        .collect();
+    // 640 steps = 20 updates of 4 x 8; wait (bounded) for version 20.
+    let weights = d("weights.safetensors");
+    let w = saver(&[
+        "weights",
+        "--learner",
+        &url,
+        "--min-version",
+        "20",
+        "--out",
+        &weights,
+    ]);
+    let text = String::from_utf8_lossy(&w.stdout).to_string();
+    assert!(
+        w.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&w.stderr)
+    );
+    assert!(
+        text.starts_with("version 20") && text.contains("agent.mu.w"),
+        "{text}"
+    );
+    drop(actors);
+
+    // The embedded run with the same PCPN file, seed and actor count.
+    let pcpn = d("store/pcpn-angle-d2.safetensors");
+    let mut targs = vec!["train", "--pcpn", pcpn.as_str()];
+    let emb_dir = d("embedded");
+    targs.extend(run);
+    targs.extend(["--out", emb_dir.as_str()]);
+    let t = saver(&targs);
+    assert!(t.status.success(), "{}", String::from_utf8_lossy(&t.stderr));
+
+    let (remote, meta) = saver_proto::decode(&std::fs::read(&weights).unwrap()).unwrap();
+    assert_eq!(meta["version"], "20");
+    let (local, _) =
+        saver_proto::decode(&std::fs::read(dir.join("embedded/checkpoint.safetensors")).unwrap())
+            .unwrap();
+    for r in &remote {
+        let l = local.iter().find(|l| l.name == r.name).unwrap();
+        assert_eq!(l.shape, r.shape);
+        assert!(
+            l.data
+                .iter()
+                .zip(&r.data)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{} differs between the processes and the embedded run",
+            r.name
+        );
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
