@@ -1,6 +1,6 @@
 //! The learner and actors over real gRPC on 127.0.0.1:0, through the generated client.
 
-use crate::temp_dir;
+use crate::{assert_tensors_in, temp_dir};
 use saver::bench::random_pcpn;
 use saver::train::{follow, start_learner, train_with};
 use saver_actor::grpc::GrpcLink;
@@ -19,21 +19,6 @@ fn checkpoint(path: &Path) -> Vec<NamedTensor> {
     saver_proto::decode(&std::fs::read(path).unwrap())
         .unwrap()
         .0
-}
-
-fn assert_bit_identical(a: &[NamedTensor], b: &[NamedTensor]) {
-    assert_eq!(a.len(), b.len());
-    for (x, y) in a.iter().zip(b) {
-        assert_eq!((&x.name, &x.shape), (&y.name, &y.shape));
-        assert!(
-            x.data
-                .iter()
-                .zip(&y.data)
-                .all(|(p, q)| p.to_bits() == q.to_bits()),
-            "{} differs",
-            x.name
-        );
-    }
 }
 
 /// Runs `config` with its actors as gRPC clients of a learner served on 127.0.0.1:0.
@@ -106,10 +91,12 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
         .unwrap();
         let remote = run_over_grpc(&config, &dir.join("grpc"), pcpn);
         assert_eq!((embedded.version, remote.version), (20, 20));
-        assert_bit_identical(
-            &checkpoint(&embedded.checkpoint),
-            &checkpoint(&remote.checkpoint),
+        let (a, b) = (
+            checkpoint(&embedded.checkpoint),
+            checkpoint(&remote.checkpoint),
         );
+        assert_eq!(a.len(), b.len());
+        assert_tensors_in(&a, &b);
         std::fs::remove_dir_all(dir).ok();
     }
 }

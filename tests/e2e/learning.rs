@@ -1,6 +1,6 @@
 //! Whole runs in-process: A2C learns angle d = 2, and sync training is deterministic.
 
-use crate::temp_dir;
+use crate::{assert_tensors_in, temp_dir};
 use saver::train::train_with;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
@@ -59,15 +59,5 @@ fn sync_training_is_bit_for_bit_repeatable() {
         std::fs::remove_dir_all(dir).ok();
     }
     assert_eq!(runs[0].len(), runs[1].len());
-    for (a, b) in runs[0].iter().zip(&runs[1]) {
-        assert_eq!(a.name, b.name);
-        assert!(
-            a.data
-                .iter()
-                .zip(&b.data)
-                .all(|(x, y)| x.to_bits() == y.to_bits()),
-            "{} differs between identical runs",
-            a.name
-        );
-    }
+    assert_tensors_in(&runs[0], &runs[1]);
 }

@@ -14,3 +14,22 @@ pub fn temp_dir(name: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
+
+/// Every tensor of `part` is in `whole` with the same shape and bit-identical values.
+pub fn assert_tensors_in(part: &[saver_proto::NamedTensor], whole: &[saver_proto::NamedTensor]) {
+    for p in part {
+        let w = whole
+            .iter()
+            .find(|w| w.name == p.name)
+            .unwrap_or_else(|| panic!("{} is missing", p.name));
+        assert_eq!(w.shape, p.shape, "{}", p.name);
+        assert!(
+            w.data
+                .iter()
+                .zip(&p.data)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{} differs",
+            p.name
+        );
+    }
+}

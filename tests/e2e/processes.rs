@@ -1,7 +1,7 @@
 //! The `saver` binary as separate OS processes: pcpn-trainer, learner and 4 actors on
 //! 127.0.0.1 (ports chosen by the OS), weights fetched with `saver weights`.
 
-use crate::temp_dir;
+use crate::{assert_tensors_in, temp_dir};
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
@@ -130,17 +130,6 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
     let (local, _) =
         saver_proto::decode(&std::fs::read(dir.join("embedded/checkpoint.safetensors")).unwrap())
             .unwrap();
-    for r in &remote {
-        let l = local.iter().find(|l| l.name == r.name).unwrap();
-        assert_eq!(l.shape, r.shape);
-        assert!(
-            l.data
-                .iter()
-                .zip(&r.data)
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
-            "{} differs between the processes and the embedded run",
-            r.name
-        );
-    }
+    assert_tensors_in(&remote, &local);
     std::fs::remove_dir_all(dir).ok();
 }
