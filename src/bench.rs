@@ -35,6 +35,9 @@ pub struct BenchArgs {
     /// Updates in each rollout-plus-update cycle measurement.
     #[arg(long, default_value_t = 100)]
     pub cycle_updates: u64,
+    /// Skip the gRPC service measurements.
+    #[arg(long)]
+    pub no_services: bool,
 }
 
 /// Sets candle's CPU thread count (read at every matmul). Called before other threads
@@ -195,5 +198,28 @@ pub fn run(args: BenchArgs) -> Result<()> {
         );
     }
     std::fs::remove_dir_all(&out).ok();
+    if !args.no_services {
+        services(&args)?;
+    }
+    Ok(())
+}
+
+fn services(args: &BenchArgs) -> Result<()> {
+    use crate::bench_services::{broadcast_latency, ingress, processes_vs_embedded};
+    println!("\nservices (gRPC over loopback, A2C angle d=4):");
+    let (emb, procs) = processes_vs_embedded(4 * args.cycle_updates)?;
+    println!(
+        "  16 actor processes vs embedded: {procs:.0} vs {emb:.0} env steps/s = {:.2} (goal >= 0.8)",
+        procs / emb
+    );
+    let rate = ingress(args.seconds.max(2.0))?;
+    println!(
+        "  learner ingress, no updates: {rate:.0} transitions/s = {:.2} of the 200k goal",
+        rate / 200_000.0
+    );
+    let (p50, p99) = broadcast_latency(100)?;
+    println!(
+        "  weight broadcast to 16 subscribers: p50 {p50:.2} ms, p99 {p99:.2} ms (goal p99 < 20 ms)"
+    );
     Ok(())
 }

@@ -2,6 +2,7 @@
 //! end-to-end tests can drive a run in-process as well as through the binary.
 
 pub mod bench;
+pub mod bench_services;
 pub mod config;
 pub mod plot;
 pub mod pretrain;

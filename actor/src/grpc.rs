@@ -56,7 +56,10 @@ impl GrpcLink {
             .build()
             .map_err(|e| LinkError::Closed(format!("starting the link runtime: {e}")))?;
         let endpoint = Channel::from_shared(url.to_string())
-            .map_err(|e| LinkError::Rejected(format!("learner address {url:?}: {e}")))?;
+            .map_err(|e| LinkError::Rejected(format!("learner address {url:?}: {e}")))?
+            .tcp_nodelay(true)
+            .initial_stream_window_size(Some(4 << 20))
+            .initial_connection_window_size(Some(8 << 20));
         let channel = rt
             .block_on(endpoint.connect())
             .map_err(|e| LinkError::Closed(format!("connecting to {url}: {e}")))?;
