@@ -214,15 +214,25 @@ impl Learner for LearnerService {
                         Err(e.to_string())
                     }
                     Ok(r) => {
-                        let h = hub.clone();
-                        match blocking(move || h.submit(r)).await {
-                            Ok(Ok(())) => Ok(()),
-                            Ok(Err(LinkError::Closed(why))) => {
+                        // Queue without leaving the runtime; only a full queue (the
+                        // trainer is behind) waits on the blocking pool.
+                        let queued = match hub.try_submit(r) {
+                            Ok(Some(back)) => {
+                                let h = hub.clone();
+                                blocking(move || h.submit(back)).await.unwrap_or_else(|s| {
+                                    Err(LinkError::Rejected(s.message().to_string()))
+                                })
+                            }
+                            Ok(None) => Ok(()),
+                            Err(e) => Err(e),
+                        };
+                        match queued {
+                            Ok(()) => Ok(()),
+                            Err(LinkError::Closed(why)) => {
                                 let _ = tx.send(Err(Status::unavailable(why))).await;
                                 break;
                             }
-                            Ok(Err(LinkError::Rejected(why))) => Err(why),
-                            Err(status) => Err(status.message().to_string()),
+                            Err(LinkError::Rejected(why)) => Err(why),
                         }
                     }
                 };

@@ -162,8 +162,32 @@ impl Hub {
         }
     }
 
-    /// Validates a rollout at the edge and queues it for the trainer.
+    /// Validates a rollout at the edge and queues it for the trainer, waiting while
+    /// the queue is full (back-pressure).
     pub fn submit(&self, rollout: Rollout) -> Result<(), LinkError> {
+        let mut item = rollout;
+        loop {
+            match self.try_submit(item)? {
+                None => return Ok(()),
+                Some(back) => {
+                    item = back;
+                    let s = self.lock();
+                    if let Some(why) = &s.closed {
+                        return Err(LinkError::Closed(why.clone()));
+                    }
+                    let _ = self
+                        .changed
+                        .wait_timeout(s, Duration::from_millis(2))
+                        .unwrap_or_else(|e| e.into_inner());
+                }
+            }
+        }
+    }
+
+    /// Validates a rollout and queues it without waiting: `Ok(None)` when queued,
+    /// `Ok(Some(rollout))` back when the queue is full. Async callers use it and only
+    /// fall back to the blocking [`Hub::submit`] when the trainer is behind.
+    pub fn try_submit(&self, rollout: Rollout) -> Result<Option<Rollout>, LinkError> {
         let reject = |why: String| {
             self.stats.rejected.fetch_add(1, Ordering::Relaxed);
             tracing::warn!("rollout rejected: {why}");
@@ -200,29 +224,15 @@ impl Hub {
         if let Err(e) = rollout.validate(&self.layout) {
             return reject(e.to_string());
         }
-        // Back-pressure: wait for room, but notice a close while waiting.
-        let mut item = rollout;
-        loop {
-            match self.queue.try_send(item) {
-                Ok(()) => {
-                    self.stats.accepted.fetch_add(1, Ordering::Relaxed);
-                    return Ok(());
-                }
-                Err(TrySendError::Disconnected(_)) => {
-                    return Err(LinkError::Closed("the trainer has stopped".into()))
-                }
-                Err(TrySendError::Full(back)) => {
-                    item = back;
-                    let s = self.lock();
-                    if let Some(why) = &s.closed {
-                        return Err(LinkError::Closed(why.clone()));
-                    }
-                    let _ = self
-                        .changed
-                        .wait_timeout(s, Duration::from_millis(2))
-                        .unwrap_or_else(|e| e.into_inner());
-                }
+        match self.queue.try_send(rollout) {
+            Ok(()) => {
+                self.stats.accepted.fetch_add(1, Ordering::Relaxed);
+                Ok(None)
             }
+            Err(TrySendError::Disconnected(_)) => {
+                Err(LinkError::Closed("the trainer has stopped".into()))
+            }
+            Err(TrySendError::Full(back)) => Ok(Some(back)),
         }
     }
 
