@@ -208,10 +208,7 @@ pub async fn serve(
 ) -> Result<(), tonic::transport::Error> {
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<PcpnStoreServer<PcpnService>>().await;
-    tonic::transport::Server::builder()
-        .tcp_nodelay(true)
-        .initial_stream_window_size(Some(4 << 20))
-        .initial_connection_window_size(Some(8 << 20))
+    saver_proto::server()
         .add_service(health_service)
         .add_service(service.into_server())
         .serve_with_incoming_shutdown(
