@@ -94,7 +94,6 @@ pub fn ingress(seconds: f64) -> Result<f64> {
     let url = serve_hub(&rt, hub.clone())?;
     let n = config.rollout as usize;
     let deadline = Instant::now() + Duration::from_secs_f64(seconds);
-    let start_count = Arc::new(Mutex::new(None::<(Instant, u64)>));
     let tasks: Vec<_> = (0..16u32)
         .map(|i| {
             let url = url.clone();
@@ -153,8 +152,7 @@ pub fn ingress(seconds: f64) -> Result<f64> {
         .collect();
     // Count from one second in (connections warm) to the deadline.
     std::thread::sleep(Duration::from_secs(1).min(Duration::from_secs_f64(seconds / 4.0)));
-    *start_count.lock().unwrap_or_else(|e| e.into_inner()) =
-        Some((Instant::now(), drained.load(Ordering::Relaxed)));
+    let (t0, c0) = (Instant::now(), drained.load(Ordering::Relaxed));
     while Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -163,10 +161,6 @@ pub fn ingress(seconds: f64) -> Result<f64> {
     for t in tasks {
         let _ = rt.block_on(t);
     }
-    let (t0, c0) = start_count
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .unwrap_or(end);
     Ok((end.1 - c0) as f64 / (end.0 - t0).as_secs_f64().max(1e-9))
 }
 

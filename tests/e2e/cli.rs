@@ -11,6 +11,21 @@ fn saver(args: &[&str]) -> Output {
         .expect("the saver binary runs")
 }
 
+/// `saver train --algo saver --steps 256 --out <out>` plus `extra`.
+fn train_saver(out: &std::path::Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "train",
+        "--algo",
+        "saver",
+        "--steps",
+        "256",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend(extra);
+    saver(&args)
+}
+
 fn text(o: &Output) -> String {
     format!(
         "{}{}",
@@ -174,37 +189,13 @@ fn pcpn_is_pretrained_once_reused_and_refused_for_another_env() {
 
     // train --algo saver finds it in the store instead of pretraining again.
     let run = dir.join("run");
-    let o = saver(&[
-        "train",
-        "--algo",
-        "saver",
-        "--dim",
-        "2",
-        "--steps",
-        "256",
-        "--pcpn-dir",
-        s,
-        "--out",
-        run.to_str().unwrap(),
-    ]);
+    let o = train_saver(&run, &["--dim", "2", "--pcpn-dir", s]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     assert!(t.contains("Using the cached PCPN"), "{t}");
 
     // A PCPN for d = 2 is refused for a d = 4 run, with the reason.
-    let o = saver(&[
-        "train",
-        "--algo",
-        "saver",
-        "--dim",
-        "4",
-        "--steps",
-        "256",
-        "--pcpn",
-        file.to_str().unwrap(),
-        "--out",
-        run.to_str().unwrap(),
-    ]);
+    let o = train_saver(&run, &["--dim", "4", "--pcpn", file.to_str().unwrap()]);
     let t = text(&o);
     assert!(!o.status.success());
     assert!(
@@ -217,19 +208,7 @@ fn pcpn_is_pretrained_once_reused_and_refused_for_another_env() {
     let n = bytes.len();
     bytes[n - 3] ^= 0x40;
     std::fs::write(&file, &bytes).unwrap();
-    let o = saver(&[
-        "train",
-        "--algo",
-        "saver",
-        "--dim",
-        "2",
-        "--steps",
-        "256",
-        "--pcpn-dir",
-        s,
-        "--out",
-        run.to_str().unwrap(),
-    ]);
+    let o = train_saver(&run, &["--dim", "2", "--pcpn-dir", s]);
     assert!(!o.status.success());
     assert!(text(&o).contains("corrupt"), "{}", text(&o));
     std::fs::remove_dir_all(dir).ok();
