@@ -43,7 +43,7 @@ pub fn processes_vs_embedded(updates: u64) -> Result<(f64, f64)> {
     let stop = Arc::new(AtomicBool::new(false));
     let emb = train_with(&config, &dir.join("embedded"), None, stop.clone(), false)?;
     let rt = runtime()?;
-    let learner = start_learner(&config, &dir.join("grpc"), None, stop)?;
+    let learner = start_learner(&config, &dir.join("grpc"), None, stop, 0)?;
     let url = serve_hub(&rt, learner.hub.clone())?;
     let exe = std::env::current_exe().context("finding the saver binary")?;
     let mut actors = Vec::new();

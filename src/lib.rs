@@ -1,8 +1,10 @@
 //! The `saver` command-line tool as a library: each module is one subcommand, so the
 //! end-to-end tests can drive a run in-process as well as through the binary.
 
+pub mod access;
 pub mod bench;
 pub mod bench_services;
+pub mod clients;
 pub mod config;
 pub mod plot;
 pub mod pretrain;

@@ -3,7 +3,7 @@
 //! measures the updates against the machine's matmul peak; `saver plot` draws curves.
 
 use clap::{Parser, Subcommand};
-use saver::{bench, config, plot, pretrain, services, train};
+use saver::{bench, clients, config, plot, pretrain, services, train};
 use std::process::ExitCode;
 
 /// SAVER: state aligned vector rewards with quantile regression RL.
@@ -31,9 +31,11 @@ enum Command {
     /// Serve the PcpnStore gRPC service: pretrain and hand out PCPNs.
     PcpnTrainer(services::PcpnTrainerArgs),
     /// Print a learner's current weights (version, tensor names and shapes); save them.
-    Weights(services::WeightsArgs),
+    Weights(clients::WeightsArgs),
+    /// Print what a learner is doing: version, steps, registered actors, counters.
+    Status(clients::StatusArgs),
     /// Exit 0 when a server answers SERVING on grpc.health.v1.
-    Healthcheck(services::HealthArgs),
+    Healthcheck(clients::HealthArgs),
 }
 
 fn main() -> ExitCode {
@@ -54,8 +56,9 @@ fn main() -> ExitCode {
         Command::Learner(a) => services::learner(a),
         Command::Actor(a) => services::actor(a),
         Command::PcpnTrainer(a) => services::pcpn_trainer(a),
-        Command::Weights(a) => services::weights(a),
-        Command::Healthcheck(a) => services::healthcheck(a),
+        Command::Weights(a) => clients::weights(a),
+        Command::Status(a) => clients::status(a),
+        Command::Healthcheck(a) => clients::healthcheck(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,25 +2,27 @@
 //! `pcpn-trainer`, and the clients `weights` and `healthcheck`. They run the same
 //! learner and actor code as `saver train`, with gRPC between them.
 
+use crate::access::{ServerAccess, TokenArgs};
 use crate::config::RunArgs;
 use crate::pretrain::obtain_pcpn;
 use crate::train::{default_run_dir, follow, report, start_learner};
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use saver_actor::grpc::{decode_weights, GrpcLink};
-use saver_actor::run_actor;
+use saver_actor::grpc::GrpcLink;
+use saver_actor::{run_actor, ActorError, ActorSummary};
 use saver_core::config::Algo;
+use saver_core::link::LinkError;
 use saver_core::link::Registration;
 use saver_learner::grpc::{LearnerService, TrainerStatus};
 use saver_pcpn_trainer::service::{fetch, PcpnService};
 use saver_pcpn_trainer::{load_pcpn_bytes, PcpnStore};
-use saver_proto::pb;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
-fn runtime() -> Result<tokio::runtime::Runtime> {
+pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -74,11 +76,30 @@ pub struct LearnerArgs {
     /// Exit when training is done instead of serving the final weights until stopped.
     #[arg(long)]
     pub exit_when_done: bool,
+    /// Sync mode: seconds a round waits for each actor before it goes ahead without
+    /// the late ones (they rejoin with their next rollout).
+    #[arg(long, default_value_t = 10.0, value_parser = positive_secs)]
+    pub round_timeout: f64,
+    /// Write the checkpoint (atomically) every this many updates, besides at the end
+    /// and on Ctrl-C or SIGTERM; 0: only then. A restart with the same --out resumes.
+    #[arg(long, default_value_t = 100)]
+    pub checkpoint_every: u64,
+    /// Token and --insecure.
+    #[command(flatten)]
+    pub access: ServerAccess,
+}
+
+fn positive_secs(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v < 1e6 => Ok(v),
+        _ => Err(format!("{s:?} is not a number of seconds in (0, 1e6)")),
+    }
 }
 
 /// Runs `saver learner`.
 pub fn learner(args: LearnerArgs) -> Result<()> {
     let config = args.run.resolve()?;
+    let check = args.access.check(args.listen)?;
     let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join("config.toml"), crate::config::to_toml(&config))?;
@@ -87,7 +108,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         (Algo::A2c, _) => None,
         (Algo::Saver, Some(url)) if url.starts_with("http://") || url.starts_with("https://") => {
             let bytes = rt
-                .block_on(fetch(url, &config))
+                .block_on(fetch(url, &config, args.access.token.client()?))
                 .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
             let shown = PathBuf::from(format!("{url} ({})", config.env));
             let (pcpn, info) = load_pcpn_bytes(&bytes, &shown, &config.env, &saver_core::device())
@@ -101,8 +122,12 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         }
     };
     let stop = Arc::new(AtomicBool::new(false));
-    let learner = start_learner(&config, &out, pcpn, stop.clone())?;
+    let learner = start_learner(&config, &out, pcpn, stop.clone(), args.checkpoint_every)?;
+    learner
+        .hub
+        .set_round_timeout(std::time::Duration::from_secs_f64(args.round_timeout));
     let (service, status) = LearnerService::new(learner.hub.clone());
+    let service = service.with_access(check);
     let listener = rt.block_on(bind(args.listen))?;
     let addr = listener.local_addr()?;
     eprintln!(
@@ -160,81 +185,78 @@ pub struct ActorArgs {
     /// Name in the learner's logs (default: actor-<process id>).
     #[arg(long)]
     pub name: Option<String>,
-    /// Keep trying to reach the learner for this many seconds at start-up.
-    #[arg(long, default_value_t = 120)]
+    /// Give up after this many seconds without reaching the learner (at start-up or
+    /// after losing it); until then reconnect with jittered backoff.
+    #[arg(long, default_value_t = 600)]
     pub connect_timeout: u64,
+    /// The learner's token.
+    #[command(flatten)]
+    pub token: TokenArgs,
 }
 
-/// Runs `saver actor`.
+/// Delay before reconnect attempt `n` (0, 1, …): 100 ms doubling up to 5 s, times a
+/// random factor in [0.5, 1) so that actors cut off together do not return together.
+fn backoff(n: u32) -> Duration {
+    let base = 0.1 * 2f64.powi(n.min(6) as i32);
+    Duration::from_secs_f64(base.min(5.0) * rand::random_range(0.5..1.0))
+}
+
+/// Runs `saver actor`: registers, acts, and when the learner is lost (restart, cut
+/// link) reconnects and registers again, until the run finishes.
 pub fn actor(args: ActorArgs) -> Result<()> {
     let name = args
         .name
         .clone()
         .unwrap_or_else(|| format!("actor-{}", std::process::id()));
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(args.connect_timeout);
-    let mut link = loop {
-        match GrpcLink::connect(&args.learner) {
-            Ok(l) => break l,
-            Err(e) if std::time::Instant::now() < deadline => {
-                tracing::info!("{e}; retrying");
-                std::thread::sleep(std::time::Duration::from_millis(500));
-            }
-            Err(e) => return Err(e.into()),
-        }
-    };
-    let reg = Registration {
-        name: name.clone(),
-        session: rand::random(),
-        n_envs: args.envs,
-    };
+    let token = args.token.client()?;
+    let give_up = Duration::from_secs(args.connect_timeout);
     let stop = AtomicBool::new(false);
-    let summary = run_actor(&mut link, &reg, &stop)?;
+    let mut total = ActorSummary::default();
+    let mut attempt = 0u32;
+    let mut last_contact = Instant::now();
+    loop {
+        let reg = Registration {
+            name: name.clone(),
+            session: rand::random(),
+            n_envs: args.envs,
+        };
+        let outcome = GrpcLink::connect_with(&args.learner, token.clone())
+            .map_err(ActorError::from)
+            .and_then(|mut link| run_actor(&mut link, &reg, &stop));
+        let why = match outcome {
+            Ok(s) => {
+                total.rollouts += s.rollouts;
+                total.steps += s.steps;
+                total.episodes += s.episodes;
+                if s.rollouts > 0 {
+                    attempt = 0;
+                    last_contact = Instant::now();
+                }
+                match s.lost {
+                    None => break,
+                    Some(why) => why,
+                }
+            }
+            Err(ActorError::Link(LinkError::Finished(_))) => break,
+            Err(ActorError::Link(LinkError::Closed(why))) => why,
+            Err(e) => return Err(e).with_context(|| format!("{name} at {}", args.learner)),
+        };
+        if last_contact.elapsed() > give_up {
+            bail!(
+                "{name}: no learner at {} for {} s ({why}); giving up",
+                args.learner,
+                give_up.as_secs()
+            );
+        }
+        let wait = backoff(attempt);
+        attempt += 1;
+        tracing::warn!("{name}: {why}; reconnecting in {wait:?}");
+        std::thread::sleep(wait);
+    }
     eprintln!(
-        "{name}: learner done; {} rollouts, {} env steps, {} episodes",
-        summary.rollouts, summary.steps, summary.episodes
+        "{name}: run finished; {} rollouts, {} env steps, {} episodes",
+        total.rollouts, total.steps, total.episodes
     );
-    Ok(())
-}
-
-/// `saver weights` flags.
-#[derive(Args, Clone, Debug)]
-pub struct WeightsArgs {
-    /// The learner's URL.
-    #[arg(long, default_value = "http://127.0.0.1:50051")]
-    pub learner: String,
-    /// Write the weights (safetensors) here.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// Wait for at least this version.
-    #[arg(long, default_value_t = 0)]
-    pub min_version: u64,
-}
-
-/// Runs `saver weights`.
-pub fn weights(args: WeightsArgs) -> Result<()> {
-    let rt = runtime()?;
-    let reply = rt.block_on(async {
-        let mut client = pb::learner_client::LearnerClient::connect(args.learner.clone())
-            .await
-            .with_context(|| format!("connecting to {}", args.learner))?
-            .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
-        let w = client
-            .get_weights(pb::WeightsRequest {
-                min_version: args.min_version,
-            })
-            .await
-            .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
-        anyhow::Ok(w.into_inner())
-    })?;
-    let decoded = decode_weights(&reply)?;
-    println!("version {}", decoded.version);
-    for t in &decoded.tensors {
-        println!("{:<16} {:?}", t.name, t.shape);
-    }
-    if let Some(path) = &args.out {
-        saver_core::checkpoint::write_atomic(path, &reply.safetensors)?;
-        println!("weights written to {}", path.display());
-    }
     Ok(())
 }
 
@@ -247,10 +269,14 @@ pub struct PcpnTrainerArgs {
     /// The store folder.
     #[arg(long, default_value = "pcpn-cache")]
     pub store: PathBuf,
+    /// Token and --insecure.
+    #[command(flatten)]
+    pub access: ServerAccess,
 }
 
 /// Runs `saver pcpn-trainer`.
 pub fn pcpn_trainer(args: PcpnTrainerArgs) -> Result<()> {
+    let check = args.access.check(args.listen)?;
     let rt = runtime()?;
     let listener = rt.block_on(bind(args.listen))?;
     eprintln!(
@@ -259,44 +285,9 @@ pub fn pcpn_trainer(args: PcpnTrainerArgs) -> Result<()> {
         listener.local_addr()?
     );
     rt.block_on(saver_pcpn_trainer::service::serve(
-        PcpnService::new(&args.store),
+        PcpnService::new(&args.store).with_access(check),
         listener,
         terminated(),
     ))?;
-    Ok(())
-}
-
-/// `saver healthcheck` flags.
-#[derive(Args, Clone, Debug)]
-pub struct HealthArgs {
-    /// The server's URL.
-    #[arg(long, default_value = "http://127.0.0.1:50051")]
-    pub addr: String,
-}
-
-/// Runs `saver healthcheck`: exit 0 when the server reports SERVING (grpc.health.v1).
-pub fn healthcheck(args: HealthArgs) -> Result<()> {
-    use tonic_health::pb::health_client::HealthClient;
-    use tonic_health::pb::HealthCheckRequest;
-    let rt = runtime()?;
-    let status = rt.block_on(async {
-        let channel = tonic::transport::Channel::from_shared(args.addr.clone())
-            .with_context(|| format!("server address {:?}", args.addr))?
-            .connect()
-            .await
-            .with_context(|| format!("connecting to {}", args.addr))?;
-        let mut client = HealthClient::new(channel);
-        let r = client
-            .check(HealthCheckRequest {
-                service: String::new(),
-            })
-            .await
-            .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
-        anyhow::Ok(r.into_inner().status)
-    })?;
-    if status != tonic_health::pb::health_check_response::ServingStatus::Serving as i32 {
-        bail!("{} is not serving (status {status})", args.addr);
-    }
-    println!("{}: SERVING", args.addr);
     Ok(())
 }

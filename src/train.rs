@@ -11,7 +11,10 @@ use saver_actor::run_actor;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::link::{PolicyWeights, Registration};
 use saver_core::nets::Pcpn;
-use saver_learner::{spawn_trainer, Hub, InProcessLink, MetricsRow, TrainerHandle, TrainerOutcome};
+use saver_learner::{
+    spawn_trainer, Counters, Hub, InProcessLink, MetricsRow, TrainerHandle, TrainerOptions,
+    TrainerOutcome,
+};
 use saver_pcpn_trainer::PcpnStore;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -83,26 +86,54 @@ pub struct LocalLearner {
     pub trainer: TrainerHandle,
     /// One row per update.
     pub rows: mpsc::Receiver<MetricsRow>,
+    /// Counters it started from (non-zero when resumed).
+    pub start: Counters,
 }
 
-/// Builds the algorithm around `pcpn` (SAVER) or none (A2C), publishes version 0 and
-/// starts the trainer thread writing into `out`.
+/// Builds the algorithm around `pcpn` (SAVER) or none (A2C), resumes it from `out`'s
+/// checkpoint when there is one of the same settings, publishes the first version and
+/// starts the trainer thread writing into `out` (a checkpoint every `checkpoint_every`
+/// updates too, when it is not 0).
 pub fn start_learner(
     config: &RunConfig,
     out: &Path,
     pcpn: Option<Pcpn>,
     stop: Arc<AtomicBool>,
+    checkpoint_every: u64,
 ) -> Result<LocalLearner> {
     let dev = saver_core::device();
-    let algo = saver_core::algo::build(config, pcpn, &dev)?;
+    let mut algo = saver_core::algo::build(config, pcpn, &dev)?;
+    let resumed = saver_learner::resume(out, config, algo.as_mut())
+        .with_context(|| format!("resuming from {}", out.display()))?;
+    if let Some(c) = &resumed {
+        eprintln!(
+            "resuming {} from its checkpoint: version {}, {} steps, {} episodes",
+            out.display(),
+            c.version,
+            c.steps,
+            c.episodes
+        );
+    }
+    let start = resumed.unwrap_or_default();
     let initial = PolicyWeights {
-        version: 0,
+        version: start.version,
         tensors: algo.policy_tensors()?,
     };
     let (hub, rx) = Hub::new(config.clone(), initial, 2 * config.actors as usize);
     let (row_tx, rows) = mpsc::channel::<MetricsRow>();
-    let trainer = spawn_trainer(algo, hub.clone(), rx, out.to_path_buf(), Some(row_tx), stop)?;
-    Ok(LocalLearner { hub, trainer, rows })
+    let opts = TrainerOptions {
+        rows: Some(row_tx),
+        checkpoint_every,
+        start,
+        ..TrainerOptions::new(out.to_path_buf(), stop)
+    };
+    let trainer = spawn_trainer(algo, hub.clone(), rx, opts)?;
+    Ok(LocalLearner {
+        hub,
+        trainer,
+        rows,
+        start,
+    })
 }
 
 /// Follows the metrics rows until training ends, showing progress when `show`, and
@@ -148,7 +179,7 @@ pub fn train_with(
     stop: Arc<AtomicBool>,
     show: bool,
 ) -> Result<TrainerOutcome> {
-    let learner = start_learner(config, out, pcpn, stop.clone())?;
+    let learner = start_learner(config, out, pcpn, stop.clone(), 0)?;
     let mut actors = Vec::new();
     for i in 0..config.actors {
         let mut link = InProcessLink::new(learner.hub.clone());

@@ -6,26 +6,28 @@ use saver_core::link::{Assignment, LearnerLink, LinkError, PolicyWeights, Regist
 use saver_core::rollout::Rollout;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
+use saver_proto::AddToken;
 use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
 use std::sync::Arc;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::StreamExt;
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 
 /// A connection to a learner.
 pub struct GrpcLink {
     /// Drives the streams (one worker thread).
     rt: tokio::runtime::Runtime,
-    /// The generated client.
-    client: LearnerClient<Channel>,
+    /// The generated client (adds the token to every call).
+    client: LearnerClient<InterceptedService<Channel, AddToken>>,
     /// Rollouts into the open StreamRollouts call.
     rollouts: Option<mpsc::Sender<pb::Rollout>>,
     /// Newest weights from WatchWeights, decoded.
     weights: Option<watch::Receiver<Option<Arc<PolicyWeights>>>>,
-    /// Set when a stream ends: the reason the next call fails with.
-    closed: watch::Receiver<Option<String>>,
+    /// Set when a stream ends: the error the next call fails with.
+    closed: watch::Receiver<Option<LinkError>>,
     /// Its sender, handed to the stream tasks.
-    closed_tx: watch::Sender<Option<String>>,
+    closed_tx: watch::Sender<Option<LinkError>>,
 }
 
 fn status_error(s: tonic::Status) -> LinkError {
@@ -33,6 +35,7 @@ fn status_error(s: tonic::Status) -> LinkError {
         tonic::Code::InvalidArgument
         | tonic::Code::FailedPrecondition
         | tonic::Code::Unauthenticated => LinkError::Rejected(s.message().to_string()),
+        tonic::Code::OutOfRange => LinkError::Finished(s.message().to_string()),
         _ => LinkError::Closed(format!("{}: {}", s.code(), s.message())),
     }
 }
@@ -48,22 +51,24 @@ pub fn decode_weights(w: &pb::Weights) -> Result<PolicyWeights, LinkError> {
 }
 
 impl GrpcLink {
-    /// Connects to `url` (e.g. `http://127.0.0.1:50051`).
+    /// Connects to `url` (e.g. `http://127.0.0.1:50051`) without a token.
     pub fn connect(url: &str) -> Result<Self, LinkError> {
+        Self::connect_with(url, AddToken::default())
+    }
+
+    /// Connects to `url`, sending `token` on every call.
+    pub fn connect_with(url: &str, token: AddToken) -> Result<Self, LinkError> {
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .enable_all()
             .build()
             .map_err(|e| LinkError::Closed(format!("starting the link runtime: {e}")))?;
-        let endpoint = Channel::from_shared(url.to_string())
-            .map_err(|e| LinkError::Rejected(format!("learner address {url:?}: {e}")))?
-            .tcp_nodelay(true)
-            .initial_stream_window_size(Some(4 << 20))
-            .initial_connection_window_size(Some(8 << 20));
+        let endpoint = saver_proto::endpoint(url)
+            .map_err(|e| LinkError::Rejected(format!("learner address {url:?}: {e}")))?;
         let channel = rt
             .block_on(endpoint.connect())
             .map_err(|e| LinkError::Closed(format!("connecting to {url}: {e}")))?;
-        let client = LearnerClient::new(channel)
+        let client = LearnerClient::with_interceptor(channel, token)
             .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
         let (closed_tx, closed) = watch::channel(None);
@@ -77,7 +82,7 @@ impl GrpcLink {
         })
     }
 
-    fn closed_reason(&self) -> Option<String> {
+    fn closed_reason(&self) -> Option<LinkError> {
         self.closed.borrow().clone()
     }
 
@@ -104,12 +109,14 @@ impl GrpcLink {
                     }
                     Ok(_) => {}
                     Err(s) => {
-                        let _ = closed.send(Some(format!("rollout stream: {}", s.message())));
+                        let _ = closed.send(Some(status_error(s)));
                         return;
                     }
                 }
             }
-            let _ = closed.send(Some("the learner closed the rollout stream".into()));
+            let _ = closed.send(Some(LinkError::Closed(
+                "the learner closed the rollout stream".into(),
+            )));
         });
         let stream = self
             .rt
@@ -128,12 +135,14 @@ impl GrpcLink {
                         }
                     }
                     Err(e) => {
-                        let _ = closed.send(Some(e.to_string()));
+                        let _ = closed.send(Some(e));
                         return;
                     }
                 }
             }
-            let _ = closed.send(Some("the learner ended the weights stream".into()));
+            let _ = closed.send(Some(LinkError::Closed(
+                "the learner ended the weights stream".into(),
+            )));
         });
         self.rollouts = Some(tx);
         self.weights = Some(wrx);
@@ -181,8 +190,8 @@ impl LearnerLink for GrpcLink {
                         return Ok(w);
                     }
                 }
-                if let Some(why) = closed.borrow().clone() {
-                    return Err(LinkError::Closed(why));
+                if let Some(e) = closed.borrow().clone() {
+                    return Err(e);
                 }
                 tokio::select! {
                     r = rx.changed() => if r.is_err() {
@@ -195,8 +204,8 @@ impl LearnerLink for GrpcLink {
     }
 
     fn push(&mut self, rollout: Rollout) -> Result<(), LinkError> {
-        if let Some(why) = self.closed_reason() {
-            return Err(LinkError::Closed(why));
+        if let Some(e) = self.closed_reason() {
+            return Err(e);
         }
         let tx = self
             .rollouts

@@ -23,7 +23,7 @@ pub enum ActorError {
 }
 
 /// What an actor did, for logs and tests.
-#[derive(Debug, Default, Clone, Copy)]
+#[derive(Debug, Default, Clone)]
 pub struct ActorSummary {
     /// Rollouts the learner accepted.
     pub rollouts: u64,
@@ -33,6 +33,9 @@ pub struct ActorSummary {
     pub episodes: u64,
     /// Version of the first weights it acted with.
     pub first_version: u64,
+    /// Why the link was lost before the run finished (`None`: finished or stopped);
+    /// the caller may reconnect and register again.
+    pub lost: Option<String>,
 }
 
 /// One actor: its envs, their current observations and episode counters.
@@ -138,7 +141,8 @@ impl Actor {
     }
 }
 
-/// Registers through `link` and acts until the learner closes or `stop` is set.
+/// Registers through `link` and acts until the run finishes, the link is lost
+/// ([`ActorSummary::lost`]) or `stop` is set.
 /// Sync mode: after each rollout the actor waits for the next version; async mode: it
 /// goes on with the newest weights it has.
 pub fn run_actor(
@@ -154,7 +158,11 @@ pub fn run_actor(
     while !stop.load(Ordering::Relaxed) {
         let weights = match link.weights(want) {
             Ok(w) => w,
-            Err(LinkError::Closed(_)) => break,
+            Err(LinkError::Finished(_)) => break,
+            Err(LinkError::Closed(why)) => {
+                summary.lost = Some(why);
+                break;
+            }
             Err(e) => return Err(e.into()),
         };
         if summary.rollouts == 0 {
@@ -166,7 +174,11 @@ pub fn run_actor(
         summary.episodes += rollout.episodes.len() as u64;
         match link.push(rollout) {
             Ok(()) => summary.rollouts += 1,
-            Err(LinkError::Closed(_)) => break,
+            Err(LinkError::Finished(_)) => break,
+            Err(LinkError::Closed(why)) => {
+                summary.lost = Some(why);
+                break;
+            }
             Err(e) => return Err(e.into()),
         }
         want = match assignment.config.mode {

@@ -46,11 +46,14 @@ impl PolicyWeights {
 }
 
 /// Why a link call failed.
-#[derive(Debug, thiserror::Error)]
+#[derive(Clone, Debug, thiserror::Error)]
 pub enum LinkError {
-    /// The learner is gone or shutting down: the actor should stop (or reconnect).
+    /// The learner is gone, unreachable or restarting: the actor should reconnect.
     #[error("learner closed: {0}")]
     Closed(String),
+    /// The run is over (every step trained): the actor should stop.
+    #[error("run finished: {0}")]
+    Finished(String),
     /// The learner refused this request; the message says why.
     #[error("rejected by the learner: {0}")]
     Rejected(String),

@@ -8,12 +8,14 @@ use saver_core::link::{LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
 use saver_proto::pb::learner_server::{Learner, LearnerServer};
 use saver_proto::pb::{self, RolloutAck};
+use saver_proto::CheckToken;
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::StreamExt;
+use tonic::service::interceptor::InterceptedService;
 use tonic::{Request, Response, Status, Streaming};
 
 /// One published version, encoded once and shared by every reader.
@@ -43,6 +45,8 @@ pub struct LearnerService {
     weights: watch::Receiver<EncodedWeights>,
     /// Extra status the trainer reports (steps, mean episode length, finished).
     status: watch::Receiver<TrainerStatus>,
+    /// The token every call must carry (none by default).
+    access: CheckToken,
 }
 
 /// What the trainer side tells the service for `Status`.
@@ -81,6 +85,7 @@ impl Drop for Leave {
 fn link_status(e: LinkError) -> Status {
     match e {
         LinkError::Closed(why) => Status::unavailable(why),
+        LinkError::Finished(why) => Status::out_of_range(why),
         LinkError::Rejected(why) => Status::invalid_argument(why),
     }
 }
@@ -134,16 +139,25 @@ impl LearnerService {
                 hub,
                 weights: rx,
                 status: status_rx,
+                access: CheckToken::default(),
             },
             status_tx,
         )
     }
 
-    /// The tonic server for this service with the message size limits set.
-    pub fn into_server(self) -> LearnerServer<Self> {
-        LearnerServer::new(self)
+    /// Requires `access`'s token on every call.
+    pub fn with_access(mut self, access: CheckToken) -> Self {
+        self.access = access;
+        self
+    }
+
+    /// The tonic server for this service: message size limits set, token checked.
+    pub fn into_server(self) -> InterceptedService<LearnerServer<Self>, CheckToken> {
+        let access = self.access.clone();
+        let server = LearnerServer::new(self)
             .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
+        InterceptedService::new(server, access)
     }
 
     fn weights_reply(w: &EncodedWeights) -> pb::Weights {
@@ -228,8 +242,8 @@ impl Learner for LearnerService {
                         };
                         match queued {
                             Ok(()) => Ok(()),
-                            Err(LinkError::Closed(why)) => {
-                                let _ = tx.send(Err(Status::unavailable(why))).await;
+                            Err(e @ (LinkError::Closed(_) | LinkError::Finished(_))) => {
+                                let _ = tx.send(Err(link_status(e))).await;
                                 break;
                             }
                             Err(LinkError::Rejected(why)) => Err(why),
@@ -257,11 +271,20 @@ impl Learner for LearnerService {
     ) -> Result<Response<Self::WatchWeightsStream>, Status> {
         let mut rx = self.weights.clone();
         let (tx, out) = mpsc::channel(1);
+        let hub = self.hub.clone();
         tokio::spawn(async move {
             loop {
                 // The newest version only: a slow reader skips what it missed.
                 let reply = Self::weights_reply(&rx.borrow_and_update());
-                if tx.send(Ok(reply)).await.is_err() || rx.changed().await.is_err() {
+                if tx.send(Ok(reply)).await.is_err() {
+                    break;
+                }
+                if rx.changed().await.is_err() {
+                    // The run ended: say how (finished, or the learner is stopping).
+                    let why = hub
+                        .closed_reason()
+                        .unwrap_or_else(|| LinkError::Closed("the learner stopped".into()));
+                    let _ = tx.send(Err(link_status(why))).await;
                     break;
                 }
             }

@@ -29,6 +29,8 @@ pub struct HubStats {
     pub accepted: AtomicU64,
     /// Rollouts refused at the edge (bad shape, unknown actor, closed).
     pub rejected: AtomicU64,
+    /// Times a sync round went ahead without an actor that missed its deadline.
+    pub late: AtomicU64,
 }
 
 struct State {
@@ -38,8 +40,8 @@ struct State {
     next_id: u32,
     /// Newest weights.
     weights: Arc<PolicyWeights>,
-    /// Set when the run is over: every waiter returns `Closed` with this reason.
-    closed: Option<String>,
+    /// Set when the run is over or the learner stops: every waiter returns this.
+    closed: Option<LinkError>,
 }
 
 /// Shared state between ingress and the trainer.
@@ -56,9 +58,14 @@ pub struct Hub {
     changed: Condvar,
     /// Ingress side of the bounded rollout queue.
     queue: SyncSender<Rollout>,
+    /// Sync mode: how long a round waits for a registered actor (milliseconds).
+    round_timeout_ms: AtomicU64,
     /// Counters.
     pub stats: HubStats,
 }
+
+/// How long a sync round waits for a registered actor unless told otherwise.
+pub const DEFAULT_ROUND_TIMEOUT: Duration = Duration::from_secs(10);
 
 impl Hub {
     /// A hub with initial weights; returns the trainer's end of the rollout queue.
@@ -81,6 +88,7 @@ impl Hub {
             }),
             changed: Condvar::new(),
             queue: tx,
+            round_timeout_ms: AtomicU64::new(DEFAULT_ROUND_TIMEOUT.as_millis() as u64),
             stats: HubStats::default(),
         });
         (hub, rx)
@@ -96,6 +104,20 @@ impl Hub {
         &self.config
     }
 
+    /// Sync mode: a round waits this long for each registered actor, then goes ahead
+    /// with the rollouts it has and leaves the late actors out until they send again.
+    pub fn set_round_timeout(&self, timeout: Duration) {
+        let ms = u64::try_from(timeout.as_millis())
+            .unwrap_or(u64::MAX)
+            .max(1);
+        self.round_timeout_ms.store(ms, Ordering::Relaxed);
+    }
+
+    /// The sync round deadline.
+    pub fn round_timeout(&self) -> Duration {
+        Duration::from_millis(self.round_timeout_ms.load(Ordering::Relaxed))
+    }
+
     /// Registers an actor: ids are dense and handed out in arrival order.
     pub fn register(&self, reg: &Registration) -> Result<Assignment, LinkError> {
         if reg.n_envs == 0 || reg.n_envs > 1024 {
@@ -106,7 +128,7 @@ impl Hub {
         }
         let mut s = self.lock();
         if let Some(why) = &s.closed {
-            return Err(LinkError::Closed(why.clone()));
+            return Err(why.clone());
         }
         let actor_id = s.next_id;
         s.next_id += 1;
@@ -153,7 +175,7 @@ impl Hub {
         let mut s = self.lock();
         loop {
             if let Some(why) = &s.closed {
-                return Err(LinkError::Closed(why.clone()));
+                return Err(why.clone());
             }
             if s.actors.len() >= n {
                 return Ok(());
@@ -173,7 +195,7 @@ impl Hub {
                     item = back;
                     let s = self.lock();
                     if let Some(why) = &s.closed {
-                        return Err(LinkError::Closed(why.clone()));
+                        return Err(why.clone());
                     }
                     let _ = self
                         .changed
@@ -196,7 +218,7 @@ impl Hub {
         {
             let s = self.lock();
             if let Some(why) = &s.closed {
-                return Err(LinkError::Closed(why.clone()));
+                return Err(why.clone());
             }
             match s.actors.get(&rollout.actor_id) {
                 None => return reject(format!("unknown actor id {}", rollout.actor_id)),
@@ -249,7 +271,7 @@ impl Hub {
                 return Ok(s.weights.clone());
             }
             if let Some(why) = &s.closed {
-                return Err(LinkError::Closed(why.clone()));
+                return Err(why.clone());
             }
             s = self.changed.wait(s).unwrap_or_else(|e| e.into_inner());
         }
@@ -261,14 +283,30 @@ impl Hub {
         self.changed.notify_all();
     }
 
-    /// Ends the run: every waiting or future call returns `Closed(why)`.
+    /// Stops serving (the learner stops or failed): every waiting or future call
+    /// returns `Closed(why)`, which tells actors to reconnect later.
     pub fn close(&self, why: &str) {
+        self.end(LinkError::Closed(why.to_string()));
+    }
+
+    /// Ends the run for good (every step trained): calls return `Finished(why)`, which
+    /// tells actors to stop.
+    pub fn finish(&self, why: &str) {
+        self.end(LinkError::Finished(why.to_string()));
+    }
+
+    fn end(&self, e: LinkError) {
         let mut s = self.lock();
         if s.closed.is_none() {
-            s.closed = Some(why.to_string());
+            s.closed = Some(e);
         }
         drop(s);
         self.changed.notify_all();
+    }
+
+    /// Why the hub closed, if it did.
+    pub fn closed_reason(&self) -> Option<LinkError> {
+        self.lock().closed.clone()
     }
 
     /// Whether the hub is closed.

@@ -10,7 +10,9 @@ mod inproc;
 pub mod metrics;
 pub mod trainer;
 
-pub use hub::{Hub, HubStats};
+pub use hub::{Hub, HubStats, DEFAULT_ROUND_TIMEOUT};
 pub use inproc::InProcessLink;
 pub use metrics::{EpisodeWindow, MetricsRow};
-pub use trainer::{spawn_trainer, TrainerHandle, TrainerOutcome};
+pub use trainer::{
+    resume, spawn_trainer, Counters, TrainerHandle, TrainerOptions, TrainerOutcome, CHECKPOINT_FILE,
+};

@@ -93,8 +93,15 @@ fn opt(x: Option<f64>) -> String {
 }
 
 impl MetricsCsv {
-    /// Creates `path` and writes the header.
-    pub fn create(path: &Path, stat_names: &[&str]) -> std::io::Result<Self> {
+    /// Creates `path` and writes the header; with `append`, an existing file (a
+    /// resumed run) keeps its rows and gets the new ones after them.
+    pub fn create(path: &Path, stat_names: &[&str], append: bool) -> std::io::Result<Self> {
+        if append && path.exists() {
+            let file = std::fs::OpenOptions::new().append(true).open(path)?;
+            return Ok(Self {
+                out: std::io::BufWriter::new(file),
+            });
+        }
         let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
         write!(
             out,

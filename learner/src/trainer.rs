@@ -6,11 +6,11 @@ use crate::metrics::{EpisodeWindow, MetricsCsv, MetricsRow};
 use crate::Hub;
 use saver_core::algo::Algorithm;
 use saver_core::checkpoint;
-use saver_core::config::Mode;
+use saver_core::config::{Mode, RunConfig};
 use saver_core::link::PolicyWeights;
 use saver_core::rollout::{Batch, Rollout};
 use saver_core::{CoreError, Result};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender};
@@ -45,15 +45,40 @@ pub struct TrainerHandle {
     pub join: JoinHandle<Result<TrainerOutcome>>,
 }
 
-/// Starts the trainer thread. Rows of metrics go to `rows` (for a progress display) as
-/// well as to `run_dir/metrics.csv`; `stop` ends the run early with a checkpoint.
+/// How a trainer runs besides its algorithm and hub.
+pub struct TrainerOptions {
+    /// Run folder: metrics.csv and checkpoint.safetensors.
+    pub run_dir: PathBuf,
+    /// Metrics rows also go here (for a progress display).
+    pub rows: Option<Sender<MetricsRow>>,
+    /// Set to end the run early (with a checkpoint).
+    pub stop: Arc<AtomicBool>,
+    /// Write the checkpoint every this many updates too (0: only at the end).
+    pub checkpoint_every: u64,
+    /// Where the counters start: zero, or a resumed checkpoint's (see [`resume`]).
+    pub start: Counters,
+}
+
+impl TrainerOptions {
+    /// A fresh run into `run_dir`: no periodic checkpoints, counters from zero.
+    pub fn new(run_dir: PathBuf, stop: Arc<AtomicBool>) -> Self {
+        Self {
+            run_dir,
+            rows: None,
+            stop,
+            checkpoint_every: 0,
+            start: Counters::default(),
+        }
+    }
+}
+
+/// Starts the trainer thread. Rows of metrics go to `run_dir/metrics.csv` (and to
+/// `opts.rows`); `opts.stop` ends the run early with a checkpoint.
 pub fn spawn_trainer(
     algo: Box<dyn Algorithm>,
     hub: Arc<Hub>,
     rx: Receiver<Rollout>,
-    run_dir: PathBuf,
-    rows: Option<Sender<MetricsRow>>,
-    stop: Arc<AtomicBool>,
+    opts: TrainerOptions,
 ) -> std::io::Result<TrainerHandle> {
     let join = std::thread::Builder::new()
         .name("saver-trainer".into())
@@ -62,11 +87,13 @@ pub fn spawn_trainer(
                 algo,
                 hub: hub.clone(),
                 rx,
-                stop,
+                stop: opts.stop.clone(),
+                late: BTreeSet::new(),
             }
-            .run(&run_dir, rows);
+            .run(&opts);
             match &res {
-                Ok(_) => hub.close("training finished"),
+                Ok(o) if o.interrupted => hub.close("the learner is stopping"),
+                Ok(_) => hub.finish("training finished"),
                 Err(e) => hub.close(&format!("learner failed: {e}")),
             }
             res
@@ -74,11 +101,70 @@ pub fn spawn_trainer(
     Ok(TrainerHandle { join })
 }
 
+/// Name of the learner's checkpoint in its run folder.
+pub const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
+
+/// Loads `run_dir`'s checkpoint into `algo` if there is one and returns its counters
+/// (`None`: no checkpoint, a fresh run). A checkpoint of another config is an error:
+/// resuming it would mix two runs.
+pub fn resume(
+    run_dir: &Path,
+    config: &RunConfig,
+    algo: &mut dyn Algorithm,
+) -> Result<Option<Counters>> {
+    let path = run_dir.join(CHECKPOINT_FILE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let c = checkpoint::load(&path)?;
+    let meta = |k: &str| {
+        c.meta.get(k).cloned().ok_or_else(|| {
+            CoreError::Checkpoint(format!("{}: no {k:?} in its metadata", path.display()))
+        })
+    };
+    let num = |k: &str| -> Result<u128> {
+        meta(k)?.parse().map_err(|_| {
+            CoreError::Checkpoint(format!("{}: {k:?} is not a number", path.display()))
+        })
+    };
+    if meta("format")? != CHECKPOINT_FORMAT {
+        return Err(CoreError::Checkpoint(format!(
+            "{} is not a learner checkpoint",
+            path.display()
+        )));
+    }
+    if meta("config_hash")? != config.hash() {
+        return Err(CoreError::Checkpoint(format!(
+            "{} belongs to a run with other settings; resume it with the same settings \
+             (its config.toml) or start this run in another folder",
+            path.display()
+        )));
+    }
+    let tensors = checkpoint::to_candle(&c.tensors, &saver_core::device())?;
+    algo.load_state(&|n| tensors.get(n).cloned(), num("optimizer_steps")? as u64)?;
+    if let Some(pos) = c.meta.get("rng_word_pos") {
+        let pos = pos
+            .parse()
+            .map_err(|_| CoreError::Checkpoint(format!("{}: bad rng_word_pos", path.display())))?;
+        algo.set_rng_word_pos(pos);
+    }
+    Ok(Some(Counters {
+        version: num("version")? as u64,
+        steps: num("steps")? as u64,
+        episodes: num("episodes")? as u64,
+    }))
+}
+
+const CHECKPOINT_FORMAT: &str = "saver-learner-checkpoint/1";
+
 struct Trainer {
     algo: Box<dyn Algorithm>,
     hub: Arc<Hub>,
     rx: Receiver<Rollout>,
     stop: Arc<AtomicBool>,
+    /// Sync mode: actors that missed a round's deadline; rounds stop waiting for them
+    /// until they send again.
+    late: BTreeSet<u32>,
 }
 
 /// The rollouts of one update and their policy lag.
@@ -92,27 +178,30 @@ struct Round {
 }
 
 /// Counters saved in checkpoints.
-struct Counters {
-    version: u64,
-    steps: u64,
-    episodes: u64,
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Weights version (updates done).
+    pub version: u64,
+    /// Env steps trained on.
+    pub steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
 }
 
 impl Trainer {
-    fn run(mut self, run_dir: &Path, rows: Option<Sender<MetricsRow>>) -> Result<TrainerOutcome> {
+    fn run(mut self, opts: &TrainerOptions) -> Result<TrainerOutcome> {
         let io = |what: &str, e: std::io::Error| CoreError::Checkpoint(format!("{what}: {e}"));
+        let run_dir = &opts.run_dir;
         std::fs::create_dir_all(run_dir).map_err(|e| io("creating run folder", e))?;
         let metrics_path = run_dir.join("metrics.csv");
-        let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names())
+        let resumed = opts.start != Counters::default();
+        let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names(), resumed)
             .map_err(|e| io("creating metrics.csv", e))?;
         let config = self.hub.config().clone();
         let wait = self.hub.wait_for_actors(config.actors as usize);
         let mut window = EpisodeWindow::default();
-        let mut c = Counters {
-            version: 0,
-            steps: 0,
-            episodes: 0,
-        };
+        let mut c = opts.start;
+        let checkpoint = run_dir.join(CHECKPOINT_FILE);
         let mut stale_dropped = 0u64;
         let mut interrupted = wait.is_err();
         let start = Instant::now();
@@ -139,7 +228,7 @@ impl Trainer {
                 tensors: self.algo.policy_tensors()?,
             }));
             window.extend(&episodes);
-            c.episodes = window.total;
+            c.episodes += episodes.len() as u64;
             let wall_s = start.elapsed().as_secs_f64();
             let row = MetricsRow {
                 steps: c.steps,
@@ -148,18 +237,20 @@ impl Trainer {
                 steps_per_s: c.steps as f64 / wall_s.max(1e-9),
                 mean_ep_len_100: window.mean_all(),
                 mean_ep_len_100_actor0: window.mean_actor0(),
-                episodes: window.total,
+                episodes: c.episodes,
                 lag_mean,
                 lag_max,
                 stale_dropped,
                 stats: stats.values,
             };
             csv.write(&row).map_err(|e| io("writing metrics.csv", e))?;
-            if let Some(tx) = &rows {
+            if let Some(tx) = &opts.rows {
                 let _ = tx.send(row);
             }
+            if opts.checkpoint_every > 0 && c.version.is_multiple_of(opts.checkpoint_every) {
+                self.save_checkpoint(&checkpoint, &c, &config)?;
+            }
         }
-        let checkpoint = run_dir.join("checkpoint.safetensors");
         self.save_checkpoint(&checkpoint, &c, &config)?;
         Ok(TrainerOutcome {
             version: c.version,
@@ -174,19 +265,52 @@ impl Trainer {
     }
 
     /// The rollouts of the next update; `None` when asked to stop or when every sender
-    /// is gone. Sync: one from each registered actor at `version`, in actor-id order.
-    /// Async: the next `actors` rollouts whose lag is at most `max_lag`, ordered by
-    /// (actor id, sequence number).
+    /// is gone. Sync: one from each registered actor at `version`, in actor-id order;
+    /// an actor that misses the round deadline is left out (and not waited for again
+    /// until it sends). Async: the next `actors` rollouts whose lag is at most
+    /// `max_lag`, ordered by (actor id, sequence number).
     fn collect_round(&mut self, version: u64, stale: &mut u64) -> Option<Round> {
         let config = self.hub.config();
         let (mode, want, max_lag) = (config.mode, config.actors as usize, config.max_lag);
+        let timeout = self.hub.round_timeout();
+        let mut deadline = Instant::now() + timeout;
         let mut pending: BTreeMap<(u32, u64), Rollout> = BTreeMap::new();
         loop {
-            let expected = match mode {
-                Mode::Sync => self.hub.actors().len(),
-                Mode::Async => want,
+            let complete = match mode {
+                Mode::Sync => {
+                    let live = self.hub.actors();
+                    self.late.retain(|id| live.contains_key(id));
+                    let missing: Vec<u32> = live
+                        .keys()
+                        .filter(|id| !self.late.contains(id) && !pending.contains_key(&(**id, 0)))
+                        .copied()
+                        .collect();
+                    let expired = Instant::now() >= deadline;
+                    if expired && !pending.is_empty() && !missing.is_empty() {
+                        tracing::warn!(
+                            version,
+                            ?missing,
+                            "sync round deadline ({timeout:?}) passed: going ahead without \
+                             these actors until they send again"
+                        );
+                        self.hub
+                            .stats
+                            .late
+                            .fetch_add(missing.len() as u64, Ordering::Relaxed);
+                        self.late.extend(&missing);
+                    } else if expired && pending.is_empty() {
+                        if live.is_empty() {
+                            tracing::warn!(version, "every actor is gone; waiting for actors");
+                        } else {
+                            tracing::warn!(version, actors = live.len(), "no rollout yet");
+                        }
+                        deadline = Instant::now() + timeout;
+                    }
+                    !pending.is_empty() && (missing.is_empty() || expired)
+                }
+                Mode::Async => pending.len() >= want,
             };
-            if expected > 0 && pending.len() >= expected {
+            if complete {
                 let rollouts: Vec<Rollout> = pending.into_values().collect();
                 let lags: Vec<u64> = rollouts
                     .iter()
@@ -203,6 +327,9 @@ impl Trainer {
             }
             match self.rx.recv_timeout(Duration::from_millis(50)) {
                 Ok(r) => {
+                    if self.late.remove(&r.actor_id) {
+                        tracing::info!(actor = r.actor_id, "late actor is back");
+                    }
                     let fresh = match mode {
                         Mode::Sync => r.policy_version == version,
                         Mode::Async => {
@@ -233,18 +360,10 @@ impl Trainer {
         }
     }
 
-    fn save_checkpoint(
-        &self,
-        path: &Path,
-        c: &Counters,
-        config: &saver_core::config::RunConfig,
-    ) -> Result<()> {
+    fn save_checkpoint(&self, path: &Path, c: &Counters, config: &RunConfig) -> Result<()> {
         let tensors = checkpoint::to_named_all(&self.algo.state_tensors()?)?;
-        let meta = HashMap::from([
-            (
-                "format".to_string(),
-                "saver-learner-checkpoint/1".to_string(),
-            ),
+        let mut meta = HashMap::from([
+            ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
             ("version".to_string(), c.version.to_string()),
             ("steps".to_string(), c.steps.to_string()),
             ("episodes".to_string(), c.episodes.to_string()),
@@ -258,6 +377,9 @@ impl Trainer {
             ),
             ("config_hash".to_string(), config.hash()),
         ]);
+        if let Some(pos) = self.algo.rng_word_pos() {
+            meta.insert("rng_word_pos".to_string(), pos.to_string());
+        }
         checkpoint::save(path, &tensors, &meta)?;
         Ok(())
     }

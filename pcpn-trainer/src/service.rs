@@ -8,10 +8,12 @@ use saver_core::config::{Algo, RunConfig};
 use saver_core::env::EnvSpec;
 use saver_proto::pb::pcpn_store_server::{PcpnStore as PcpnStoreApi, PcpnStoreServer};
 use saver_proto::pb::{self, PcpnChunk};
+use saver_proto::{AddToken, CheckToken};
 use std::path::PathBuf;
 use std::sync::Arc;
 use tokio::sync::Mutex;
 use tokio_stream::wrappers::ReceiverStream;
+use tonic::service::interceptor::InterceptedService;
 use tonic::{Request, Response, Status};
 
 /// Bytes per streamed chunk.
@@ -26,6 +28,8 @@ pub struct PcpnService {
     dir: PathBuf,
     /// One pretraining at a time (a second request for the same spec then finds the file).
     pretraining: Arc<Mutex<()>>,
+    /// The token every call must carry (none by default).
+    access: CheckToken,
 }
 
 /// The info message of a PCPN file's bytes.
@@ -54,14 +58,23 @@ impl PcpnService {
             store: PcpnStore::new(&dir),
             dir,
             pretraining: Arc::new(Mutex::new(())),
+            access: CheckToken::default(),
         }
     }
 
     /// The tonic server with the message size limits set.
-    pub fn into_server(self) -> PcpnStoreServer<Self> {
-        PcpnStoreServer::new(self)
+    pub fn into_server(self) -> InterceptedService<PcpnStoreServer<Self>, CheckToken> {
+        let access = self.access.clone();
+        let server = PcpnStoreServer::new(self)
             .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
+        InterceptedService::new(server, access)
+    }
+
+    /// Requires `access`'s token on every call.
+    pub fn with_access(mut self, access: CheckToken) -> Self {
+        self.access = access;
+        self
     }
 
     async fn read(&self, spec: &EnvSpec) -> Result<Option<Vec<u8>>, Status> {
@@ -221,13 +234,18 @@ pub async fn serve(
 /// Fetches the PCPN of `config.env` from a store at `url` (asking it to pretrain one
 /// with `config`'s pretraining settings if it has none); returns the file's bytes after
 /// checking their length and sha256.
-pub async fn fetch(url: &str, config: &RunConfig) -> Result<Vec<u8>, Status> {
+pub async fn fetch(url: &str, config: &RunConfig, token: AddToken) -> Result<Vec<u8>, Status> {
     let spec = &config.env;
     use saver_proto::pb::pcpn_store_client::PcpnStoreClient;
     use tokio_stream::StreamExt;
-    let mut client = PcpnStoreClient::connect(url.to_string())
+    let unavailable =
+        |e: tonic::transport::Error| Status::unavailable(format!("the PCPN store {url}: {e}"));
+    let channel = saver_proto::endpoint(url)
+        .map_err(unavailable)?
+        .connect()
         .await
-        .map_err(|e| Status::unavailable(format!("connecting to the PCPN store {url}: {e}")))?
+        .map_err(unavailable)?;
+    let mut client = PcpnStoreClient::with_interceptor(channel, token)
         .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
     let env = Some(pb::EnvSpec::from(spec));
     client

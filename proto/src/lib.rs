@@ -3,6 +3,9 @@
 //! (f32, little endian, with a string metadata map), so a client in any language decodes
 //! them with the safetensors package alone.
 
+pub mod access;
+pub use access::{endpoint, server, AddToken, CheckToken};
+
 /// Generated gRPC messages, clients and servers (package `saver.v1`).
 #[allow(missing_docs, clippy::all)]
 pub mod pb {
@@ -14,15 +17,6 @@ pub mod pb {
 pub const ACTOR_ID_KEY: &str = "x-saver-actor-id";
 /// Metadata key of the actor's session on StreamRollouts.
 pub const SESSION_KEY: &str = "x-saver-session";
-
-/// The transport settings every SAVER server uses: no Nagle delay, HTTP/2 windows
-/// that hold a whole weights message.
-pub fn server() -> tonic::transport::Server {
-    tonic::transport::Server::builder()
-        .tcp_nodelay(true)
-        .initial_stream_window_size(Some(4 << 20))
-        .initial_connection_window_size(Some(8 << 20))
-}
 
 /// Largest gRPC message either side accepts (weights of d = 16 nets are ~1 MiB).
 pub const MAX_MESSAGE_BYTES: usize = 64 << 20;

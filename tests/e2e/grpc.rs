@@ -28,7 +28,7 @@ fn run_over_grpc(
     pcpn: Option<Pcpn>,
 ) -> saver_learner::TrainerOutcome {
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let learner = start_learner(config, out, pcpn, Arc::new(AtomicBool::new(false))).unwrap();
+    let learner = start_learner(config, out, pcpn, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let (service, _status) = LearnerService::new(learner.hub.clone());
     let listener = rt
         .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
@@ -111,7 +111,7 @@ fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
     config.actors = 2;
     let dir = temp_dir("late");
     let rt = tokio::runtime::Runtime::new().unwrap();
-    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false))).unwrap();
+    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
     let (service, _status) = LearnerService::new(hub.clone());
     let listener = rt
@@ -218,7 +218,9 @@ fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
         std::future::pending(),
     ));
     let config = RunConfig::paper(d4, Algo::Saver, 1);
-    let err = rt.block_on(fetch(&url, &config)).unwrap_err();
+    let err = rt
+        .block_on(fetch(&url, &config, saver_proto::AddToken::default()))
+        .unwrap_err();
     assert_eq!(err.code(), tonic::Code::FailedPrecondition, "{err}");
     assert!(err.message().contains("angle-d2"), "{err}");
     std::fs::remove_dir_all(dir).ok();

@@ -36,6 +36,12 @@ pub trait Algorithm: Send {
     fn state_tensors(&self) -> Result<Vec<(String, Tensor)>>;
     /// Optimiser steps taken.
     fn optimizer_steps(&self) -> u64;
+    /// Position of the learner's random stream (SAVER's tau draws), for checkpoints.
+    fn rng_word_pos(&self) -> Option<u128> {
+        None
+    }
+    /// Restores [`Algorithm::rng_word_pos`].
+    fn set_rng_word_pos(&mut self, _pos: u128) {}
     /// Restores what [`Algorithm::state_tensors`] saved.
     fn load_state(
         &mut self,

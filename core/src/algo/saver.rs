@@ -263,4 +263,12 @@ impl Algorithm for Saver {
         self.critic.params().load(get)?;
         self.opt.restore(get, steps)
     }
+
+    fn rng_word_pos(&self) -> Option<u128> {
+        Some(self.rng.get_word_pos())
+    }
+
+    fn set_rng_word_pos(&mut self, pos: u128) {
+        self.rng.set_word_pos(pos);
+    }
 }

@@ -1,0 +1,182 @@
+//! What every SAVER server and client agrees on beyond the messages: the shared token
+//! (sent as `authorization: Bearer <token>` on every call and checked by the servers)
+//! and the HTTP/2 settings of both ends (keepalive, so that a cut link is noticed).
+
+use std::sync::Arc;
+use std::time::Duration;
+use tonic::metadata::{Ascii, MetadataValue};
+use tonic::service::Interceptor;
+use tonic::transport::Endpoint;
+use tonic::{Request, Status};
+
+/// Metadata key that carries the token.
+pub const AUTH_KEY: &str = "authorization";
+
+/// How often each end pings an idle connection, and how long it waits for the answer
+/// before it drops the connection (a cut link is noticed within their sum).
+pub const KEEPALIVE_INTERVAL: Duration = Duration::from_secs(4);
+/// See [`KEEPALIVE_INTERVAL`].
+pub const KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(8);
+
+/// Why a token cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[error("the token {0}")]
+pub struct TokenError(&'static str);
+
+/// Checks a token's form: 1 to 4096 visible ASCII characters (it travels in a header).
+pub fn validate_token(token: &str) -> Result<(), TokenError> {
+    if token.is_empty() {
+        return Err(TokenError("is empty"));
+    }
+    if token.len() > 4096 {
+        return Err(TokenError("is longer than 4096 bytes"));
+    }
+    if !token.bytes().all(|b| b.is_ascii_graphic()) {
+        return Err(TokenError(
+            "must be visible ASCII characters (no spaces or control characters)",
+        ));
+    }
+    Ok(())
+}
+
+/// Server side: refuses every call that does not carry the expected token with
+/// UNAUTHENTICATED. With no token configured it lets everything through.
+#[derive(Clone, Default)]
+pub struct CheckToken {
+    /// `Bearer <token>` as bytes.
+    expected: Option<Arc<[u8]>>,
+}
+
+impl CheckToken {
+    /// A check for `token` (`None`: no check).
+    pub fn new(token: Option<&str>) -> Result<Self, TokenError> {
+        if let Some(t) = token {
+            validate_token(t)?;
+        }
+        Ok(Self {
+            expected: token.map(|t| format!("Bearer {t}").into_bytes().into()),
+        })
+    }
+}
+
+/// Equality in time independent of where the first difference is.
+fn same_bytes(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+impl Interceptor for CheckToken {
+    fn call(&mut self, req: Request<()>) -> Result<Request<()>, Status> {
+        let Some(expected) = &self.expected else {
+            return Ok(req);
+        };
+        match req.metadata().get(AUTH_KEY) {
+            None => Err(Status::unauthenticated(
+                "this server needs a token: pass --token, SAVER_TOKEN or --token-file",
+            )),
+            Some(v) if same_bytes(v.as_bytes(), expected) => Ok(req),
+            Some(_) => Err(Status::unauthenticated("wrong token")),
+        }
+    }
+}
+
+/// Client side: adds the token to every call.
+#[derive(Clone, Default)]
+pub struct AddToken {
+    value: Option<MetadataValue<Ascii>>,
+}
+
+impl AddToken {
+    /// Sends `token` (`None`: sends nothing).
+    pub fn new(token: Option<&str>) -> Result<Self, TokenError> {
+        let value = match token {
+            None => None,
+            Some(t) => {
+                validate_token(t)?;
+                Some(
+                    format!("Bearer {t}")
+                        .parse()
+                        .map_err(|_| TokenError("cannot be sent as a header"))?,
+                )
+            }
+        };
+        Ok(Self { value })
+    }
+}
+
+impl Interceptor for AddToken {
+    fn call(&mut self, mut req: Request<()>) -> Result<Request<()>, Status> {
+        if let Some(v) = &self.value {
+            req.metadata_mut().insert(AUTH_KEY, v.clone());
+        }
+        Ok(req)
+    }
+}
+
+/// A client endpoint for `url` with the settings of every SAVER client: no Nagle
+/// delay, windows that hold a weights message, keepalive pings while idle.
+pub fn endpoint(url: &str) -> Result<Endpoint, tonic::transport::Error> {
+    Ok(Endpoint::from_shared(url.to_string())?
+        .tcp_nodelay(true)
+        .connect_timeout(Duration::from_secs(10))
+        .initial_stream_window_size(Some(4 << 20))
+        .initial_connection_window_size(Some(8 << 20))
+        .http2_keep_alive_interval(KEEPALIVE_INTERVAL)
+        .keep_alive_timeout(KEEPALIVE_TIMEOUT)
+        .keep_alive_while_idle(true))
+}
+
+/// The transport settings every SAVER server uses: no Nagle delay, HTTP/2 windows
+/// that hold a whole weights message, keepalive pings (a peer behind a cut link is
+/// dropped, so its streams end and a sync round stops waiting for it).
+pub fn server() -> tonic::transport::Server {
+    tonic::transport::Server::builder()
+        .tcp_nodelay(true)
+        .initial_stream_window_size(Some(4 << 20))
+        .initial_connection_window_size(Some(8 << 20))
+        .http2_keepalive_interval(Some(KEEPALIVE_INTERVAL))
+        .http2_keepalive_timeout(Some(KEEPALIVE_TIMEOUT))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with_header(v: Option<&str>) -> Request<()> {
+        let mut r = Request::new(());
+        if let Some(v) = v {
+            r.metadata_mut().insert(AUTH_KEY, v.parse().unwrap());
+        }
+        r
+    }
+
+    #[test]
+    fn token_check_lets_only_the_right_token_through() {
+        let mut check = CheckToken::new(Some("s3cret")).unwrap();
+        assert!(check.call(with_header(Some("Bearer s3cret"))).is_ok());
+        for bad in [
+            None,
+            Some("Bearer s3cre"),
+            Some("Bearer s3cret2"),
+            Some("s3cret"),
+        ] {
+            let e = check.call(with_header(bad)).unwrap_err();
+            assert_eq!(e.code(), tonic::Code::Unauthenticated, "{bad:?}");
+        }
+        // The client interceptor writes exactly what the check expects.
+        let sent = AddToken::new(Some("s3cret"))
+            .unwrap()
+            .call(Request::new(()));
+        assert!(check.call(sent.unwrap()).is_ok());
+        // No token configured: everything passes.
+        assert!(CheckToken::default().call(with_header(None)).is_ok());
+    }
+
+    #[test]
+    fn malformed_tokens_are_refused() {
+        for bad in ["", "two words", "tab\there", "é"] {
+            assert!(validate_token(bad).is_err(), "{bad:?}");
+        }
+        assert!(validate_token(&"x".repeat(4097)).is_err());
+        assert!(validate_token("a-Z_0.9~!").is_ok());
+    }
+}

@@ -1,0 +1,150 @@
+//! The small clients of the `saver` binary: `weights` (fetch and list a learner's
+//! weights), `status` (what a learner is doing) and `healthcheck` (grpc.health.v1, for
+//! container healthchecks where no shell or curl exists).
+
+use crate::access::TokenArgs;
+use crate::services::runtime;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use saver_actor::grpc::decode_weights;
+use saver_proto::pb;
+use saver_proto::pb::learner_client::LearnerClient;
+use saver_proto::AddToken;
+use std::path::PathBuf;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::Channel;
+
+/// Where a learner is and how to prove we may talk to it.
+#[derive(Args, Clone, Debug)]
+pub struct LearnerAddr {
+    /// The learner's URL.
+    #[arg(long, default_value = "http://127.0.0.1:50051")]
+    pub learner: String,
+    /// The learner's token.
+    #[command(flatten)]
+    pub token: TokenArgs,
+}
+
+type Client = LearnerClient<InterceptedService<Channel, AddToken>>;
+
+impl LearnerAddr {
+    async fn connect(&self) -> Result<Client> {
+        let channel = saver_proto::endpoint(&self.learner)
+            .with_context(|| format!("learner address {:?}", self.learner))?
+            .connect()
+            .await
+            .with_context(|| format!("connecting to {}", self.learner))?;
+        Ok(
+            LearnerClient::with_interceptor(channel, self.token.client()?)
+                .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES),
+        )
+    }
+}
+
+fn status_error(s: tonic::Status) -> anyhow::Error {
+    anyhow::anyhow!("{:?}: {}", s.code(), s.message())
+}
+
+/// `saver weights` flags.
+#[derive(Args, Clone, Debug)]
+pub struct WeightsArgs {
+    /// The learner.
+    #[command(flatten)]
+    pub addr: LearnerAddr,
+    /// Write the weights (safetensors) here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Wait for at least this version.
+    #[arg(long, default_value_t = 0)]
+    pub min_version: u64,
+}
+
+/// Runs `saver weights`.
+pub fn weights(args: WeightsArgs) -> Result<()> {
+    let reply = runtime()?.block_on(async {
+        let mut client = args.addr.connect().await?;
+        let w = client
+            .get_weights(pb::WeightsRequest {
+                min_version: args.min_version,
+            })
+            .await
+            .map_err(status_error)?;
+        anyhow::Ok(w.into_inner())
+    })?;
+    let decoded = decode_weights(&reply)?;
+    println!("version {}", decoded.version);
+    for t in &decoded.tensors {
+        println!("{:<16} {:?}", t.name, t.shape);
+    }
+    if let Some(path) = &args.out {
+        saver_core::checkpoint::write_atomic(path, &reply.safetensors)?;
+        println!("weights written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// `saver status` flags.
+#[derive(Args, Clone, Debug)]
+pub struct StatusArgs {
+    /// The learner.
+    #[command(flatten)]
+    pub addr: LearnerAddr,
+}
+
+/// Runs `saver status`: one `key value` line per field of the learner's Status.
+pub fn status(args: StatusArgs) -> Result<()> {
+    let s = runtime()?.block_on(async {
+        let mut client = args.addr.connect().await?;
+        let r = client
+            .status(pb::StatusRequest {})
+            .await
+            .map_err(status_error)?;
+        anyhow::Ok(r.into_inner())
+    })?;
+    println!("algo {}", s.algo);
+    println!("env {}", s.env);
+    println!("mode {}", s.mode);
+    println!("version {}", s.version);
+    println!("steps {}", s.steps);
+    println!("actors {}", s.actors);
+    println!("accepted {}", s.accepted);
+    println!("rejected {}", s.rejected);
+    println!("stale_dropped {}", s.stale_dropped);
+    println!("mean_ep_len_100 {}", s.mean_ep_len_100);
+    println!("finished {}", s.finished);
+    Ok(())
+}
+
+/// `saver healthcheck` flags.
+#[derive(Args, Clone, Debug)]
+pub struct HealthArgs {
+    /// The server's URL.
+    #[arg(long, default_value = "http://127.0.0.1:50051")]
+    pub addr: String,
+}
+
+/// Runs `saver healthcheck`: exit 0 when the server reports SERVING (grpc.health.v1,
+/// which needs no token).
+pub fn healthcheck(args: HealthArgs) -> Result<()> {
+    use tonic_health::pb::health_client::HealthClient;
+    use tonic_health::pb::HealthCheckRequest;
+    let status = runtime()?.block_on(async {
+        let channel = saver_proto::endpoint(&args.addr)
+            .with_context(|| format!("server address {:?}", args.addr))?
+            .connect()
+            .await
+            .with_context(|| format!("connecting to {}", args.addr))?;
+        let r = HealthClient::new(channel)
+            .check(HealthCheckRequest {
+                service: String::new(),
+            })
+            .await
+            .map_err(status_error)?;
+        anyhow::Ok(r.into_inner().status)
+    })?;
+    if status != tonic_health::pb::health_check_response::ServingStatus::Serving as i32 {
+        bail!("{} is not serving (status {status})", args.addr);
+    }
+    println!("{}: SERVING", args.addr);
+    Ok(())
+}
