@@ -20,8 +20,8 @@ pub struct Progress {
     unit: &'static str,
     /// When the plain line was last printed.
     last_line: Instant,
-    /// Start time (rates).
-    start: Instant,
+    /// Start time and position (rates; a resumed run starts past 0).
+    start: Option<(Instant, u64)>,
 }
 
 impl Progress {
@@ -45,12 +45,13 @@ impl Progress {
             total,
             unit,
             last_line: Instant::now(),
-            start: Instant::now(),
+            start: None,
         }
     }
 
     /// Moves to `pos` with a status message.
     pub fn update(&mut self, pos: u64, msg: &str) {
+        let (t0, pos0) = *self.start.get_or_insert((Instant::now(), pos));
         match &self.bar {
             Some(b) => {
                 b.set_position(pos);
@@ -58,7 +59,7 @@ impl Progress {
             }
             None if self.last_line.elapsed() >= LINE_EVERY => {
                 self.last_line = Instant::now();
-                let rate = pos as f64 / self.start.elapsed().as_secs_f64().max(1e-9);
+                let rate = pos.saturating_sub(pos0) as f64 / t0.elapsed().as_secs_f64().max(1e-9);
                 eprintln!(
                     "{}: {pos}/{} {} ({rate:.0}/s) {msg}",
                     self.label, self.total, self.unit

@@ -133,10 +133,17 @@ pub fn resume(
             path.display()
         )));
     }
-    if meta("config_hash")? != config.hash() {
+    // Every setting must match but the length of the run: resuming with more steps
+    // trains on.
+    let saved: Option<RunConfig> = serde_json::from_str(&meta("config")?).ok();
+    let same = saved.is_some_and(|mut saved| {
+        saved.steps = config.steps;
+        saved.hash() == config.hash()
+    });
+    if !same {
         return Err(CoreError::Checkpoint(format!(
             "{} belongs to a run with other settings; resume it with the same settings \
-             (its config.toml) or start this run in another folder",
+             (its config.toml; only --steps may change) or start this run in another folder",
             path.display()
         )));
     }

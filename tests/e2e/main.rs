@@ -1,6 +1,7 @@
 //! End-to-end tests: the `saver` binary as a user runs it, and whole training runs.
 
 mod cli;
+mod faults;
 mod grpc;
 mod learning;
 mod processes;
