@@ -133,3 +133,142 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
     assert_tensors_in(&remote, &local);
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// `saver status` of the learner at `url` as (key, value) pairs.
+fn status(url: &str) -> Option<std::collections::HashMap<String, String>> {
+    let out = saver(&["status", "--learner", url]);
+    out.status.success().then(|| {
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .filter_map(|l| l.split_once(' '))
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect()
+    })
+}
+
+/// Polls `status` until `cond` holds; panics after `limit`.
+fn wait_until(url: &str, limit: std::time::Duration, what: &str, cond: impl Fn(u64, u64) -> bool) {
+    let end = std::time::Instant::now() + limit;
+    loop {
+        if let Some(s) = status(url) {
+            let (v, a) = (s["version"].parse().unwrap(), s["actors"].parse().unwrap());
+            if cond(v, a) {
+                return;
+            }
+        }
+        assert!(
+            std::time::Instant::now() < end,
+            "not within {limit:?}: {what}; status {:?}",
+            status(url)
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+}
+
+fn version(url: &str) -> u64 {
+    status(url).expect("the learner answers")["version"]
+        .parse()
+        .unwrap()
+}
+
+fn actor(url: &str) -> Proc {
+    Proc(
+        Command::new(env!("CARGO_BIN_EXE_saver"))
+            .args(["actor", "--learner", url])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    )
+}
+
+#[test]
+fn killed_actors_and_a_killed_learner_come_back() {
+    let dir = temp_dir("kill");
+    let out = dir.join("run").display().to_string();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let listen = format!("127.0.0.1:{port}");
+    let learner_args = [
+        "learner",
+        "--listen",
+        &listen,
+        "--algo",
+        "a2c",
+        "--dim",
+        "2",
+        "--actors",
+        "2",
+        "--steps",
+        "100000000",
+        "--checkpoint-every",
+        "10",
+        "--round-timeout",
+        "1",
+        "--out",
+        &out,
+    ];
+    let (learner, url) = serve(&learner_args);
+    let mut actors = vec![actor(&url), actor(&url)];
+    wait_until(
+        &url,
+        std::time::Duration::from_secs(60),
+        "20 updates",
+        |v, a| v >= 20 && a == 2,
+    );
+
+    // kill -9 one actor: training goes on with the other; a restarted one is back fast.
+    drop(actors.remove(0));
+    let v = version(&url);
+    wait_until(
+        &url,
+        std::time::Duration::from_secs(30),
+        "training on with 1 actor",
+        |w, a| w >= v + 10 && a == 1,
+    );
+    actors.push(actor(&url));
+    wait_until(
+        &url,
+        std::time::Duration::from_secs(5),
+        "the restarted actor back",
+        |_, a| a == 2,
+    );
+    let v = version(&url);
+    wait_until(
+        &url,
+        std::time::Duration::from_secs(30),
+        "training with 2 again",
+        |w, _| w >= v + 10,
+    );
+
+    // kill -9 the learner (and the actors, so that nothing trains on after the restart
+    // until the weights are compared): the restart serves the checkpoint's weights.
+    drop(actors);
+    drop(learner);
+    let checkpoint = std::path::Path::new(&out).join("checkpoint.safetensors");
+    let (saved, meta) = saver_proto::decode(&std::fs::read(&checkpoint).unwrap()).unwrap();
+    let saved_version: u64 = meta["version"].parse().unwrap();
+    assert!(
+        saved_version >= 20 && saved_version % 10 == 0,
+        "checkpoint at {saved_version}"
+    );
+    let (_learner, url) = serve(&learner_args);
+    let fetched = dir.join("resumed.safetensors").display().to_string();
+    let w = saver(&["weights", "--learner", &url, "--out", &fetched]);
+    assert!(w.status.success(), "{}", String::from_utf8_lossy(&w.stderr));
+    let (resumed, meta) = saver_proto::decode(&std::fs::read(&fetched).unwrap()).unwrap();
+    assert_eq!(meta["version"], saved_version.to_string());
+    assert_tensors_in(&resumed, &saved);
+    // Actors join the resumed run and versions keep increasing from the checkpoint's.
+    let _actors = [actor(&url), actor(&url)];
+    wait_until(
+        &url,
+        std::time::Duration::from_secs(60),
+        "training after the restart",
+        |w, _| w >= saved_version + 10,
+    );
+    std::fs::remove_dir_all(dir).ok();
+}
