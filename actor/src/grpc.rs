@@ -32,9 +32,11 @@ pub struct GrpcLink {
 
 fn status_error(s: tonic::Status) -> LinkError {
     match s.code() {
-        tonic::Code::InvalidArgument
-        | tonic::Code::FailedPrecondition
-        | tonic::Code::Unauthenticated => LinkError::Rejected(s.message().to_string()),
+        tonic::Code::InvalidArgument | tonic::Code::Unauthenticated => {
+            LinkError::Rejected(s.message().to_string())
+        }
+        tonic::Code::FailedPrecondition => LinkError::Mismatch(s.message().to_string()),
+        tonic::Code::ResourceExhausted => LinkError::TooLarge(s.message().to_string()),
         tonic::Code::OutOfRange => LinkError::Finished(s.message().to_string()),
         _ => LinkError::Closed(format!("{}: {}", s.code(), s.message())),
     }

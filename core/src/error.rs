@@ -12,6 +12,9 @@ pub enum CoreError {
     /// Data handed to the core does not match the environment's layout.
     #[error("bad data: {0}")]
     Data(String),
+    /// Data over a size cap.
+    #[error("too large: {0}")]
+    TooLarge(String),
     /// A checkpoint or weights file is unreadable or does not match.
     #[error("checkpoint: {0}")]
     Checkpoint(String),

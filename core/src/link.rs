@@ -54,9 +54,16 @@ pub enum LinkError {
     /// The run is over (every step trained): the actor should stop.
     #[error("run finished: {0}")]
     Finished(String),
-    /// The learner refused this request; the message says why.
+    /// The learner refused this request as malformed; the message says why.
     #[error("rejected by the learner: {0}")]
     Rejected(String),
+    /// The request does not fit the learner's state: unknown actor or session, a
+    /// replayed sequence number, a policy version from the future.
+    #[error("refused by the learner: {0}")]
+    Mismatch(String),
+    /// The request is over a size cap.
+    #[error("too large for the learner: {0}")]
+    TooLarge(String),
 }
 
 /// The actor side of the actor–learner interface.

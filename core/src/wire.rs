@@ -9,7 +9,7 @@ use saver_proto::pb;
 
 /// Largest rollout (values over all arrays) a peer may send: far above any real one
 /// (1024 envs × 64 steps × a d = 64 layout), far below what would hurt the learner.
-pub const MAX_ROLLOUT_VALUES: usize = 16 << 20;
+pub const MAX_ROLLOUT_VALUES: usize = 8 << 20;
 
 impl From<&EnvLayout> for pb::EnvLayout {
     fn from(l: &EnvLayout) -> Self {
@@ -81,7 +81,7 @@ impl TryFrom<pb::Rollout> for Rollout {
             + r.vector_reward.len()
             + r.done.len();
         if total > MAX_ROLLOUT_VALUES {
-            return Err(CoreError::Data(format!(
+            return Err(CoreError::TooLarge(format!(
                 "rollout carries {total} values, more than the {MAX_ROLLOUT_VALUES} allowed"
             )));
         }

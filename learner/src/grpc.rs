@@ -6,6 +6,7 @@ use crate::Hub;
 use bytes::Bytes;
 use saver_core::link::{LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
+use saver_core::CoreError;
 use saver_proto::pb::learner_server::{Learner, LearnerServer};
 use saver_proto::pb::{self, RolloutAck};
 use saver_proto::CheckToken;
@@ -87,6 +88,8 @@ fn link_status(e: LinkError) -> Status {
         LinkError::Closed(why) => Status::unavailable(why),
         LinkError::Finished(why) => Status::out_of_range(why),
         LinkError::Rejected(why) => Status::invalid_argument(why),
+        LinkError::Mismatch(why) => Status::failed_precondition(why),
+        LinkError::TooLarge(why) => Status::resource_exhausted(why),
     }
 }
 
@@ -222,38 +225,47 @@ impl Learner for LearnerService {
                     }
                 };
                 let seq = msg.seq;
-                let ack = match Rollout::try_from(msg) {
+                let outcome = match Rollout::try_from(msg) {
                     Err(e) => {
                         hub.stats.rejected.fetch_add(1, Ordering::Relaxed);
-                        Err(e.to_string())
+                        Err(match e {
+                            CoreError::TooLarge(why) => LinkError::TooLarge(why),
+                            e => LinkError::Rejected(e.to_string()),
+                        })
                     }
-                    Ok(r) => {
-                        // Queue without leaving the runtime; only a full queue (the
-                        // trainer is behind) waits on the blocking pool.
-                        let queued = match hub.try_submit(r) {
-                            Ok(Some(back)) => {
-                                let h = hub.clone();
-                                blocking(move || h.submit(back)).await.unwrap_or_else(|s| {
-                                    Err(LinkError::Rejected(s.message().to_string()))
-                                })
-                            }
-                            Ok(None) => Ok(()),
-                            Err(e) => Err(e),
-                        };
-                        match queued {
-                            Ok(()) => Ok(()),
-                            Err(e @ (LinkError::Closed(_) | LinkError::Finished(_))) => {
-                                let _ = tx.send(Err(link_status(e))).await;
-                                break;
-                            }
-                            Err(LinkError::Rejected(why)) => Err(why),
+                    // Queue without leaving the runtime; only a full queue (the
+                    // trainer is behind) waits on the blocking pool.
+                    Ok(r) => match hub.try_submit(r) {
+                        Ok(Some(back)) => {
+                            let h = hub.clone();
+                            blocking(move || h.submit(back))
+                                .await
+                                .unwrap_or_else(|s| Err(LinkError::Closed(s.message().to_string())))
+                        }
+                        Ok(None) => Ok(()),
+                        Err(e) => Err(e),
+                    },
+                };
+                let reply = match outcome {
+                    Ok(()) => RolloutAck {
+                        seq,
+                        accepted: true,
+                        error: String::new(),
+                        code: 0,
+                    },
+                    Err(e @ (LinkError::Closed(_) | LinkError::Finished(_))) => {
+                        let _ = tx.send(Err(link_status(e))).await;
+                        break;
+                    }
+                    Err(e) => {
+                        let status = link_status(e);
+                        RolloutAck {
+                            seq,
+                            accepted: false,
+                            error: status.message().to_string(),
+                            code: status.code() as i32,
                         }
                     }
-                };
-                let reply = RolloutAck {
-                    seq,
-                    accepted: ack.is_ok(),
-                    error: ack.err().unwrap_or_default(),
                 };
                 if tx.send(Ok(reply)).await.is_err() {
                     break;

@@ -20,6 +20,8 @@ pub struct ActorInfo {
     pub session: u64,
     /// Env instances per rollout.
     pub n_envs: u32,
+    /// Sequence number of its last accepted rollout (replays are refused).
+    pub last_seq: Option<u64>,
 }
 
 /// Counters of the hub, for logs and metrics.
@@ -138,6 +140,7 @@ impl Hub {
                 name: reg.name.clone(),
                 session: reg.session,
                 n_envs: reg.n_envs,
+                last_seq: None,
             },
         );
         drop(s);
@@ -210,45 +213,22 @@ impl Hub {
     /// `Ok(Some(rollout))` back when the queue is full. Async callers use it and only
     /// fall back to the blocking [`Hub::submit`] when the trainer is behind.
     pub fn try_submit(&self, rollout: Rollout) -> Result<Option<Rollout>, LinkError> {
-        let reject = |why: String| {
+        if let Err(e) = self.check(&rollout) {
             self.stats.rejected.fetch_add(1, Ordering::Relaxed);
-            tracing::warn!("rollout rejected: {why}");
-            Err(LinkError::Rejected(why))
-        };
-        {
-            let s = self.lock();
-            if let Some(why) = &s.closed {
-                return Err(why.clone());
-            }
-            match s.actors.get(&rollout.actor_id) {
-                None => return reject(format!("unknown actor id {}", rollout.actor_id)),
-                Some(a) if a.session != rollout.session => {
-                    return reject(format!(
-                        "actor {} sent session {:x}, registered as {:x}",
-                        rollout.actor_id, rollout.session, a.session
-                    ))
-                }
-                Some(a) if a.n_envs as usize != rollout.n_envs => {
-                    return reject(format!(
-                        "actor {} registered {} envs but sent {}",
-                        rollout.actor_id, a.n_envs, rollout.n_envs
-                    ))
-                }
-                Some(_) => {}
-            }
+            tracing::warn!(
+                actor = rollout.actor_id,
+                seq = rollout.seq,
+                "rollout refused: {e}"
+            );
+            return Err(e);
         }
-        if rollout.n_steps != self.config.rollout as usize {
-            return reject(format!(
-                "rollout has {} steps, this run uses {}",
-                rollout.n_steps, self.config.rollout
-            ));
-        }
-        if let Err(e) = rollout.validate(&self.layout) {
-            return reject(e.to_string());
-        }
+        let (id, seq) = (rollout.actor_id, rollout.seq);
         match self.queue.try_send(rollout) {
             Ok(()) => {
                 self.stats.accepted.fetch_add(1, Ordering::Relaxed);
+                if let Some(a) = self.lock().actors.get_mut(&id) {
+                    a.last_seq = Some(seq);
+                }
                 Ok(None)
             }
             Err(TrySendError::Disconnected(_)) => {
@@ -256,6 +236,66 @@ impl Hub {
             }
             Err(TrySendError::Full(back)) => Ok(Some(back)),
         }
+    }
+
+    /// Everything a rollout must satisfy before it is queued: it comes from a
+    /// registered actor and session, in sequence, at a published version, with the
+    /// run's shapes and finite values.
+    fn check(&self, r: &Rollout) -> Result<(), LinkError> {
+        let mismatch = |why: String| Err(LinkError::Mismatch(why));
+        {
+            let s = self.lock();
+            if let Some(e) = &s.closed {
+                return Err(e.clone());
+            }
+            let Some(a) = s.actors.get(&r.actor_id) else {
+                return mismatch(format!("unknown actor id {}", r.actor_id));
+            };
+            if a.session != r.session {
+                return mismatch(format!(
+                    "actor {} sent session {:x}, registered as {:x}",
+                    r.actor_id, r.session, a.session
+                ));
+            }
+            if a.last_seq.is_some_and(|last| r.seq <= last) {
+                return mismatch(format!(
+                    "actor {} sent sequence number {} after {} (a replay)",
+                    r.actor_id,
+                    r.seq,
+                    a.last_seq.unwrap_or(0)
+                ));
+            }
+            if r.policy_version > s.weights.version {
+                return mismatch(format!(
+                    "policy version {} is newer than the learner's {}",
+                    r.policy_version, s.weights.version
+                ));
+            }
+            if a.n_envs as usize != r.n_envs {
+                return Err(LinkError::Rejected(format!(
+                    "actor {} registered {} envs but sent {}",
+                    r.actor_id, a.n_envs, r.n_envs
+                )));
+            }
+        }
+        if r.n_steps != self.config.rollout as usize {
+            return Err(LinkError::Rejected(format!(
+                "rollout has {} steps, this run uses {}",
+                r.n_steps, self.config.rollout
+            )));
+        }
+        r.validate(&self.layout)
+            .map_err(|e| LinkError::Rejected(e.to_string()))?;
+        let max_len = self.config.max_episode_steps;
+        if let Some(e) = r.episodes.iter().find(|e| {
+            e.actor_id != r.actor_id || e.length == 0 || e.length > max_len || !e.ret.is_finite()
+        }) {
+            return Err(LinkError::Rejected(format!(
+                "episode report {e:?} is impossible (actor {}, lengths 1..={max_len}, finite return)",
+                r.actor_id
+            )));
+        }
+        Ok(())
     }
 
     /// The newest weights.

@@ -3,6 +3,7 @@
 mod cli;
 mod faults;
 mod grpc;
+mod hostile;
 mod learning;
 mod processes;
 

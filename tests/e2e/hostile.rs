@@ -1,0 +1,225 @@
+//! Hostile input at the learner's edge, over real gRPC: 100,000 malformed rollouts on
+//! one stream, each refused with the right status code, no panic, and weights that no
+//! refused rollout changed.
+
+use crate::{assert_tensors_in, temp_dir};
+use rand::Rng;
+use saver::train::start_learner;
+use saver_actor::Actor;
+use saver_core::config::{Algo, RunConfig};
+use saver_core::env::{EnvKind, EnvSpec};
+use saver_core::link::Assignment;
+use saver_core::nets::Policy;
+use saver_core::rng::rng_for;
+use saver_learner::grpc::{serve, LearnerService};
+use saver_proto::pb::learner_client::LearnerClient;
+use saver_proto::{pb, ACTOR_ID_KEY, SESSION_KEY};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use tokio_stream::StreamExt;
+use tonic::Code;
+
+const CASES: usize = 100_000;
+
+/// The `k`-th float array of a rollout.
+fn floats(r: &mut pb::Rollout, k: usize) -> &mut Vec<f32> {
+    match k {
+        0 => &mut r.obs,
+        1 => &mut r.mu,
+        2 => &mut r.log_std,
+        3 => &mut r.actions,
+        4 => &mut r.state_delta,
+        _ => &mut r.vector_reward,
+    }
+}
+
+/// One malformed copy of `base` (sequence numbers from 6 on; 5 was accepted) and the
+/// code the learner must answer.
+fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Code) {
+    let mut r = base.clone();
+    r.seq = 6 + i as u64;
+    let kind = if i % 20_000 == 19_999 {
+        99
+    } else {
+        rng.random_range(0..11)
+    };
+    let code = match kind {
+        0 => {
+            // A shorter array (done included).
+            let k = rng.random_range(0..7);
+            if k == 6 {
+                let n = rng.random_range(0..r.done.len());
+                r.done.truncate(n);
+            } else {
+                let a = floats(&mut r, k);
+                let n = rng.random_range(0..a.len());
+                a.truncate(n);
+            }
+            Code::InvalidArgument
+        }
+        1 => {
+            let a = floats(&mut r, rng.random_range(0..6));
+            let extra = rng.random_range(1..100);
+            a.extend(std::iter::repeat_n(0.5, extra));
+            Code::InvalidArgument
+        }
+        2 => {
+            let a = floats(&mut r, rng.random_range(0..6));
+            let j = rng.random_range(0..a.len());
+            a[j] = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][rng.random_range(0..3)];
+            Code::InvalidArgument
+        }
+        3 => {
+            r.n_envs = [0, 2, 1024, u32::MAX][rng.random_range(0..4)];
+            Code::InvalidArgument
+        }
+        4 => {
+            r.n_steps = [0, 1, 7, 9, u32::MAX][rng.random_range(0..5)];
+            Code::InvalidArgument
+        }
+        5 => {
+            r.actor_id = rng.random_range(1..u32::MAX);
+            Code::FailedPrecondition
+        }
+        6 => {
+            r.session ^= rng.random_range(1..u64::MAX);
+            Code::FailedPrecondition
+        }
+        7 => {
+            r.seq = rng.random_range(0..=5);
+            Code::FailedPrecondition
+        }
+        8 => {
+            r.policy_version = rng.random_range(2..u64::MAX);
+            Code::FailedPrecondition
+        }
+        9 => {
+            let bad = [
+                pb::Episode {
+                    length: 0,
+                    success: true,
+                    ret: 1.0,
+                },
+                pb::Episode {
+                    length: 5000,
+                    success: false,
+                    ret: 1.0,
+                },
+                pb::Episode {
+                    length: 3,
+                    success: true,
+                    ret: f32::NAN,
+                },
+            ];
+            r.episodes = vec![bad[rng.random_range(0..3)]];
+            Code::InvalidArgument
+        }
+        10 => {
+            let e = pb::Episode {
+                length: 1,
+                success: true,
+                ret: 0.0,
+            };
+            r.episodes = vec![e; 9];
+            Code::InvalidArgument
+        }
+        _ => {
+            // Over the learner's size cap (but under the message limit).
+            r.obs = vec![0.0; saver_core::wire::MAX_ROLLOUT_VALUES + 1];
+            Code::ResourceExhausted
+        }
+    };
+    (r, code)
+}
+
+#[test]
+fn a_hundred_thousand_hostile_rollouts_are_refused_and_change_nothing() {
+    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
+    config.actors = 1;
+    config.steps = 1_000_000;
+    let dir = temp_dir("hostile");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
+    let hub = learner.hub.clone();
+    let (service, _status) = LearnerService::new(hub.clone());
+    let listener = rt
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    rt.spawn(serve(service, listener, std::future::pending()));
+
+    let (refused, weights_after_one) = rt.block_on(async {
+        let mut client = LearnerClient::connect(url.clone())
+            .await
+            .unwrap()
+            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
+        let session = 0x5eed;
+        let reply = client
+            .register(pb::RegisterRequest {
+                name: "fuzz".into(),
+                session,
+                n_envs: 1,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        // One real rollout (seq 5) from an actor stepping the env, so that replays
+        // can be told and one update happens.
+        let assignment = Assignment {
+            actor_id: reply.actor_id,
+            config: config.clone(),
+            config_hash: reply.config_hash,
+        };
+        let mut actor = Actor::new(&assignment, session, 1);
+        let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
+        let mut good = actor.collect(&mut policy);
+        good.seq = 5;
+        let base = pb::Rollout::from(&good);
+
+        let (tx, rx) = tokio::sync::mpsc::channel::<pb::Rollout>(64);
+        let mut req = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
+        req.metadata_mut()
+            .insert(ACTOR_ID_KEY, reply.actor_id.into());
+        req.metadata_mut().insert(SESSION_KEY, session.into());
+        let mut acks = client.stream_rollouts(req).await.unwrap().into_inner();
+        tx.send(base.clone()).await.unwrap();
+        let ack = acks.next().await.unwrap().unwrap();
+        assert!(ack.accepted, "{}", ack.error);
+        let after_one = hub.wait_weights(1).unwrap();
+
+        let mut expected = Vec::with_capacity(CASES);
+        let mut rng = rng_for(7, 0);
+        let cases: Vec<pb::Rollout> = (0..CASES)
+            .map(|i| {
+                let (r, code) = mutate(&base, i, &mut rng);
+                expected.push((r.seq, code));
+                r
+            })
+            .collect();
+        let sender = tokio::spawn(async move {
+            for r in cases {
+                tx.send(r).await.unwrap();
+            }
+        });
+        let mut refused = 0usize;
+        for (seq, code) in expected {
+            let ack = acks.next().await.expect("an ack per rollout").unwrap();
+            assert_eq!(ack.seq, seq);
+            assert!(!ack.accepted, "seq {seq} was accepted");
+            assert_eq!(Code::from(ack.code), code, "seq {seq}: {}", ack.error);
+            assert!(!ack.error.is_empty());
+            refused += 1;
+        }
+        sender.await.unwrap();
+        (refused, after_one)
+    });
+    assert_eq!(refused, CASES);
+    assert_eq!(hub.stats.accepted.load(Ordering::Relaxed), 1);
+    assert_eq!(hub.stats.rejected.load(Ordering::Relaxed), CASES as u64);
+    // Nothing refused reached the trainer: still version 1, the same tensors.
+    let now = hub.latest();
+    assert_eq!(now.version, 1);
+    assert_tensors_in(&now.tensors, &weights_after_one.tensors);
+    hub.close("test over");
+    std::fs::remove_dir_all(dir).ok();
+}
