@@ -272,3 +272,55 @@ fn killed_actors_and_a_killed_learner_come_back() {
     );
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// Resident memory of a process in KiB (Linux /proc).
+fn rss_kib(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmRSS:")).unwrap();
+    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+}
+
+#[test]
+fn sixty_four_actor_soak_keeps_the_learners_memory_flat() {
+    let dir = temp_dir("soak");
+    let out = dir.join("run").display().to_string();
+    let (learner, url) = serve(&[
+        "learner",
+        "--listen",
+        "127.0.0.1:0",
+        "--algo",
+        "a2c",
+        "--dim",
+        "2",
+        "--actors",
+        "64",
+        "--steps",
+        "100000000",
+        "--checkpoint-every",
+        "50",
+        "--out",
+        &out,
+    ]);
+    let _actors: Vec<Proc> = (0..64).map(|_| actor(&url)).collect();
+    wait_until(
+        &url,
+        std::time::Duration::from_secs(120),
+        "64 actors training",
+        |v, a| v >= 50 && a == 64,
+    );
+    let (v0, rss0) = (version(&url), rss_kib(learner.0.id()));
+    wait_until(
+        &url,
+        std::time::Duration::from_secs(300),
+        "500 more updates",
+        |v, _| v >= v0 + 500,
+    );
+    let (v1, rss1) = (version(&url), rss_kib(learner.0.id()));
+    eprintln!("64-actor soak: learner RSS {rss0} KiB at version {v0}, {rss1} KiB at version {v1}");
+    assert!(
+        rss1 < rss0 + rss0 / 2 + 32 * 1024,
+        "the learner grew from {rss0} KiB to {rss1} KiB over {} updates",
+        v1 - v0
+    );
+    std::fs::remove_dir_all(dir).ok();
+}
