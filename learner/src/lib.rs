@@ -2,17 +2,18 @@
 //! (register, hand over rollouts, wait for weights); the [`trainer`] thread forms
 //! batches, runs the algorithm's update off any async runtime and publishes each new
 //! version as one shared buffer. The embedded run reaches the hub through
-//! [`InProcessLink`]; the gRPC service will reach the same hub over the network.
+//! [`InProcessLink`]; the gRPC service ([`grpc`]) reaches the same hub over the network.
+//! [`checkpoint`] saves the learner and resumes a run.
 
+pub mod checkpoint;
 pub mod grpc;
 mod hub;
 mod inproc;
 pub mod metrics;
 pub mod trainer;
 
+pub use checkpoint::{resume, Counters, CHECKPOINT_FILE};
 pub use hub::{Hub, HubStats, DEFAULT_ROUND_TIMEOUT};
 pub use inproc::InProcessLink;
 pub use metrics::{EpisodeWindow, MetricsRow};
-pub use trainer::{
-    resume, spawn_trainer, Counters, TrainerHandle, TrainerOptions, TrainerOutcome, CHECKPOINT_FILE,
-};
+pub use trainer::{spawn_trainer, TrainerHandle, TrainerOptions, TrainerOutcome};

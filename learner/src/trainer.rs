@@ -2,16 +2,16 @@
 //! current version, batched in actor-id order), updates, publishes, logs, checkpoints.
 //! It blocks on std primitives and never runs on an async runtime.
 
+use crate::checkpoint::{save, Counters, CHECKPOINT_FILE};
 use crate::metrics::{EpisodeWindow, MetricsCsv, MetricsRow};
 use crate::Hub;
 use saver_core::algo::Algorithm;
-use saver_core::checkpoint;
-use saver_core::config::{Mode, RunConfig};
+use saver_core::config::Mode;
 use saver_core::link::PolicyWeights;
 use saver_core::rollout::{Batch, Rollout};
 use saver_core::{CoreError, Result};
-use std::collections::{BTreeMap, BTreeSet, HashMap};
-use std::path::{Path, PathBuf};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender};
 use std::sync::Arc;
@@ -55,7 +55,8 @@ pub struct TrainerOptions {
     pub stop: Arc<AtomicBool>,
     /// Write the checkpoint every this many updates too (0: only at the end).
     pub checkpoint_every: u64,
-    /// Where the counters start: zero, or a resumed checkpoint's (see [`resume`]).
+    /// Where the counters start: zero, or a resumed checkpoint's (see
+    /// [`crate::resume`]).
     pub start: Counters,
 }
 
@@ -101,69 +102,6 @@ pub fn spawn_trainer(
     Ok(TrainerHandle { join })
 }
 
-/// Name of the learner's checkpoint in its run folder.
-pub const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
-
-/// Loads `run_dir`'s checkpoint into `algo` if there is one and returns its counters
-/// (`None`: no checkpoint, a fresh run). A checkpoint of another config is an error:
-/// resuming it would mix two runs.
-pub fn resume(
-    run_dir: &Path,
-    config: &RunConfig,
-    algo: &mut dyn Algorithm,
-) -> Result<Option<Counters>> {
-    let path = run_dir.join(CHECKPOINT_FILE);
-    if !path.exists() {
-        return Ok(None);
-    }
-    let c = checkpoint::load(&path)?;
-    let meta = |k: &str| {
-        c.meta.get(k).cloned().ok_or_else(|| {
-            CoreError::Checkpoint(format!("{}: no {k:?} in its metadata", path.display()))
-        })
-    };
-    let num = |k: &str| -> Result<u128> {
-        meta(k)?.parse().map_err(|_| {
-            CoreError::Checkpoint(format!("{}: {k:?} is not a number", path.display()))
-        })
-    };
-    if meta("format")? != CHECKPOINT_FORMAT {
-        return Err(CoreError::Checkpoint(format!(
-            "{} is not a learner checkpoint",
-            path.display()
-        )));
-    }
-    // Every setting must match but the length of the run: resuming with more steps
-    // trains on.
-    let saved: Option<RunConfig> = serde_json::from_str(&meta("config")?).ok();
-    let same = saved.is_some_and(|mut saved| {
-        saved.steps = config.steps;
-        saved.hash() == config.hash()
-    });
-    if !same {
-        return Err(CoreError::Checkpoint(format!(
-            "{} belongs to a run with other settings; resume it with the same settings \
-             (its config.toml; only --steps may change) or start this run in another folder",
-            path.display()
-        )));
-    }
-    let tensors = checkpoint::to_candle(&c.tensors, &saver_core::device())?;
-    algo.load_state(&|n| tensors.get(n).cloned(), num("optimizer_steps")? as u64)?;
-    if let Some(pos) = c.meta.get("rng_word_pos") {
-        let pos = pos
-            .parse()
-            .map_err(|_| CoreError::Checkpoint(format!("{}: bad rng_word_pos", path.display())))?;
-        algo.set_rng_word_pos(pos);
-    }
-    Ok(Some(Counters {
-        version: num("version")? as u64,
-        steps: num("steps")? as u64,
-        episodes: num("episodes")? as u64,
-    }))
-}
-
-const CHECKPOINT_FORMAT: &str = "saver-learner-checkpoint/1";
-
 struct Trainer {
     algo: Box<dyn Algorithm>,
     hub: Arc<Hub>,
@@ -182,17 +120,6 @@ struct Round {
     lag_mean: f64,
     /// Largest lag.
     lag_max: u64,
-}
-
-/// Counters saved in checkpoints.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Counters {
-    /// Weights version (updates done).
-    pub version: u64,
-    /// Env steps trained on.
-    pub steps: u64,
-    /// Episodes finished.
-    pub episodes: u64,
 }
 
 impl Trainer {
@@ -255,10 +182,10 @@ impl Trainer {
                 let _ = tx.send(row);
             }
             if opts.checkpoint_every > 0 && c.version.is_multiple_of(opts.checkpoint_every) {
-                self.save_checkpoint(&checkpoint, &c, &config)?;
+                save(&checkpoint, self.algo.as_ref(), &c, &config)?;
             }
         }
-        self.save_checkpoint(&checkpoint, &c, &config)?;
+        save(&checkpoint, self.algo.as_ref(), &c, &config)?;
         Ok(TrainerOutcome {
             version: c.version,
             steps: c.steps,
@@ -365,29 +292,5 @@ impl Trainer {
                 Err(RecvTimeoutError::Disconnected) => return None,
             }
         }
-    }
-
-    fn save_checkpoint(&self, path: &Path, c: &Counters, config: &RunConfig) -> Result<()> {
-        let tensors = checkpoint::to_named_all(&self.algo.state_tensors()?)?;
-        let mut meta = HashMap::from([
-            ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
-            ("version".to_string(), c.version.to_string()),
-            ("steps".to_string(), c.steps.to_string()),
-            ("episodes".to_string(), c.episodes.to_string()),
-            (
-                "optimizer_steps".to_string(),
-                self.algo.optimizer_steps().to_string(),
-            ),
-            (
-                "config".to_string(),
-                serde_json::to_string(config).unwrap_or_default(),
-            ),
-            ("config_hash".to_string(), config.hash()),
-        ]);
-        if let Some(pos) = self.algo.rng_word_pos() {
-            meta.insert("rng_word_pos".to_string(), pos.to_string());
-        }
-        checkpoint::save(path, &tensors, &meta)?;
-        Ok(())
     }
 }

@@ -1,0 +1,109 @@
+//! The learner's checkpoint: what it holds, writing it atomically, and resuming a run
+//! from it.
+
+use saver_core::algo::Algorithm;
+use saver_core::checkpoint;
+use saver_core::config::RunConfig;
+use saver_core::{CoreError, Result};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Counters saved in checkpoints.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Weights version (updates done).
+    pub version: u64,
+    /// Env steps trained on.
+    pub steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
+}
+
+/// Name of the learner's checkpoint in its run folder.
+pub const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
+
+/// Loads `run_dir`'s checkpoint into `algo` if there is one and returns its counters
+/// (`None`: no checkpoint, a fresh run). A checkpoint of another config is an error:
+/// resuming it would mix two runs.
+pub fn resume(
+    run_dir: &Path,
+    config: &RunConfig,
+    algo: &mut dyn Algorithm,
+) -> Result<Option<Counters>> {
+    let path = run_dir.join(CHECKPOINT_FILE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let c = checkpoint::load(&path)?;
+    let meta = |k: &str| {
+        c.meta.get(k).cloned().ok_or_else(|| {
+            CoreError::Checkpoint(format!("{}: no {k:?} in its metadata", path.display()))
+        })
+    };
+    let num = |k: &str| -> Result<u128> {
+        meta(k)?.parse().map_err(|_| {
+            CoreError::Checkpoint(format!("{}: {k:?} is not a number", path.display()))
+        })
+    };
+    if meta("format")? != CHECKPOINT_FORMAT {
+        return Err(CoreError::Checkpoint(format!(
+            "{} is not a learner checkpoint",
+            path.display()
+        )));
+    }
+    // Every setting must match but the length of the run: resuming with more steps
+    // trains on.
+    let saved: Option<RunConfig> = serde_json::from_str(&meta("config")?).ok();
+    let same = saved.is_some_and(|mut saved| {
+        saved.steps = config.steps;
+        saved.hash() == config.hash()
+    });
+    if !same {
+        return Err(CoreError::Checkpoint(format!(
+            "{} belongs to a run with other settings; resume it with the same settings \
+             (its config.toml; only --steps may change) or start this run in another folder",
+            path.display()
+        )));
+    }
+    let tensors = checkpoint::to_candle(&c.tensors, &saver_core::device())?;
+    algo.load_state(&|n| tensors.get(n).cloned(), num("optimizer_steps")? as u64)?;
+    if let Some(pos) = c.meta.get("rng_word_pos") {
+        let pos = pos
+            .parse()
+            .map_err(|_| CoreError::Checkpoint(format!("{}: bad rng_word_pos", path.display())))?;
+        algo.set_rng_word_pos(pos);
+    }
+    Ok(Some(Counters {
+        version: num("version")? as u64,
+        steps: num("steps")? as u64,
+        episodes: num("episodes")? as u64,
+    }))
+}
+
+const CHECKPOINT_FORMAT: &str = "saver-learner-checkpoint/1";
+
+/// Writes the learner's checkpoint to `path` atomically: every tensor of `algo` and
+/// its optimiser, the counters, the tau-stream position, the config and its hash.
+pub fn save(path: &Path, algo: &dyn Algorithm, c: &Counters, config: &RunConfig) -> Result<()> {
+    let tensors = checkpoint::to_named_all(&algo.state_tensors()?)?;
+    let mut meta = HashMap::from([
+        ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
+        ("version".to_string(), c.version.to_string()),
+        ("steps".to_string(), c.steps.to_string()),
+        ("episodes".to_string(), c.episodes.to_string()),
+        (
+            "optimizer_steps".to_string(),
+            algo.optimizer_steps().to_string(),
+        ),
+        (
+            "config".to_string(),
+            serde_json::to_string(config).unwrap_or_default(),
+        ),
+        ("config_hash".to_string(), config.hash()),
+    ]);
+    if let Some(pos) = algo.rng_word_pos() {
+        meta.insert("rng_word_pos".to_string(), pos.to_string());
+    }
+    checkpoint::save(path, &tensors, &meta)?;
+    Ok(())
+}
