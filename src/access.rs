@@ -1,12 +1,24 @@
 //! Who may talk to a server: the shared token (flag, SAVER_TOKEN or a file) that every
-//! server checks and every client sends, and the refusal to serve a non-loopback
-//! address without one unless the user says `--insecure`.
+//! server checks and every client sends, TLS (a certificate and key for servers, the CA
+//! for clients), and the refusal to serve a non-loopback address with neither token
+//! nor TLS unless the user says `--insecure`.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use saver_proto::{AddToken, CheckToken};
+use saver_proto::access::{Certificate, ClientTlsConfig, Identity, ServerTlsConfig};
+use saver_proto::{Access, AddToken, CheckToken, ClientAccess};
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+fn read(path: &Path, what: &str) -> Result<Vec<u8>> {
+    std::fs::read(path).with_context(|| format!("reading the {what} {}", path.display()))
+}
+
+/// Client TLS that trusts the CA certificate (PEM) in `path`.
+pub fn client_tls(path: &Path) -> Result<ClientTlsConfig> {
+    let pem = read(path, "CA certificate")?;
+    Ok(ClientTlsConfig::new().ca_certificate(Certificate::from_pem(pem)))
+}
 
 /// The shared token, for servers and clients alike.
 #[derive(Args, Clone, Debug, Default)]
@@ -43,33 +55,72 @@ impl TokenArgs {
     }
 }
 
+/// What a client needs: the token and, for https:// servers, their CA.
+#[derive(Args, Clone, Debug, Default)]
+pub struct ClientArgs {
+    /// The token to send.
+    #[command(flatten)]
+    pub token: TokenArgs,
+    /// CA certificate (PEM) that signed the server's certificate (https:// URLs).
+    #[arg(long, value_name = "FILE")]
+    pub tls_ca: Option<PathBuf>,
+}
+
+impl ClientArgs {
+    /// Token and TLS settings for a connection.
+    pub fn access(&self) -> Result<ClientAccess> {
+        Ok(ClientAccess {
+            token: self.token.client()?,
+            tls: self.tls_ca.as_deref().map(client_tls).transpose()?,
+        })
+    }
+}
+
 /// Access settings of a server.
 #[derive(Args, Clone, Debug, Default)]
 pub struct ServerAccess {
     /// The token to require.
     #[command(flatten)]
     pub token: TokenArgs,
-    /// Serve a non-loopback address with no token (anyone who reaches the port can
+    /// Serve TLS with this certificate chain (PEM); needs --tls-key.
+    #[arg(long, value_name = "FILE", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The certificate's private key (PEM).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Serve a non-loopback address with neither token nor TLS (anyone who reaches the port can
     /// send rollouts and read weights).
     #[arg(long)]
     pub insecure: bool,
 }
 
 impl ServerAccess {
-    /// The token check for a server listening on `addr`; refuses an open server on a
-    /// non-loopback address unless `--insecure` was given.
-    pub fn check(&self, addr: SocketAddr) -> Result<CheckToken> {
+    /// The access settings of a server listening on `addr`; refuses an open server
+    /// (no token, no TLS) on a non-loopback address unless `--insecure` was given.
+    pub fn check(&self, addr: SocketAddr) -> Result<Access> {
         let token = self.token.token()?;
-        if token.is_none() && !addr.ip().is_loopback() && !self.insecure {
-            bail!(
-                "refusing to serve {addr} without a token: anyone who reaches it could feed \
-                 the learner or read its weights. Give a token (--token, SAVER_TOKEN or \
-                 --token-file) or, on a network you trust, pass --insecure"
-            );
+        let tls = match (&self.tls_cert, &self.tls_key) {
+            (Some(cert), Some(key)) => {
+                let id = Identity::from_pem(read(cert, "certificate")?, read(key, "key")?);
+                Some(ServerTlsConfig::new().identity(id))
+            }
+            _ => None,
+        };
+        let open = token.is_none() && tls.is_none();
+        if open && !addr.ip().is_loopback() {
+            if !self.insecure {
+                bail!(
+                    "refusing to serve {addr} with neither token nor TLS: anyone who reaches \
+                     it could feed the learner or read its weights. Give a token (--token, \
+                     SAVER_TOKEN or --token-file) and/or --tls-cert and --tls-key or, on a \
+                     network you trust, pass --insecure"
+                );
+            }
+            tracing::warn!("serving {addr} with neither token nor TLS (--insecure)");
         }
-        if token.is_none() && !addr.ip().is_loopback() {
-            tracing::warn!("serving {addr} with no token (--insecure)");
-        }
-        Ok(CheckToken::new(token.as_deref())?)
+        Ok(Access {
+            check: CheckToken::new(token.as_deref())?,
+            tls,
+        })
     }
 }

@@ -2,14 +2,14 @@
 //! weights), `status` (what a learner is doing) and `healthcheck` (grpc.health.v1, for
 //! container healthchecks where no shell or curl exists).
 
-use crate::access::TokenArgs;
+use crate::access::{client_tls, ClientArgs};
 use crate::services::runtime;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use saver_actor::grpc::decode_weights;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
-use saver_proto::AddToken;
+use saver_proto::{AddToken, ClientAccess};
 use std::path::PathBuf;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
@@ -20,24 +20,24 @@ pub struct LearnerAddr {
     /// The learner's URL.
     #[arg(long, default_value = "http://127.0.0.1:50051")]
     pub learner: String,
-    /// The learner's token.
+    /// The learner's token and CA.
     #[command(flatten)]
-    pub token: TokenArgs,
+    pub access: ClientArgs,
 }
 
 type Client = LearnerClient<InterceptedService<Channel, AddToken>>;
 
 impl LearnerAddr {
     async fn connect(&self) -> Result<Client> {
-        let channel = saver_proto::endpoint(&self.learner)
+        let access = self.access.access()?;
+        let channel = access
+            .endpoint(&self.learner)
             .with_context(|| format!("learner address {:?}", self.learner))?
             .connect()
             .await
             .with_context(|| format!("connecting to {}", self.learner))?;
-        Ok(
-            LearnerClient::with_interceptor(channel, self.token.client()?)
-                .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES),
-        )
+        Ok(LearnerClient::with_interceptor(channel, access.token)
+            .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES))
     }
 }
 
@@ -121,6 +121,9 @@ pub struct HealthArgs {
     /// The server's URL.
     #[arg(long, default_value = "http://127.0.0.1:50051")]
     pub addr: String,
+    /// CA certificate (PEM) of an https:// server.
+    #[arg(long, value_name = "FILE")]
+    pub tls_ca: Option<PathBuf>,
 }
 
 /// Runs `saver healthcheck`: exit 0 when the server reports SERVING (grpc.health.v1,
@@ -129,7 +132,12 @@ pub fn healthcheck(args: HealthArgs) -> Result<()> {
     use tonic_health::pb::health_client::HealthClient;
     use tonic_health::pb::HealthCheckRequest;
     let status = runtime()?.block_on(async {
-        let channel = saver_proto::endpoint(&args.addr)
+        let access = ClientAccess {
+            tls: args.tls_ca.as_deref().map(client_tls).transpose()?,
+            ..ClientAccess::default()
+        };
+        let channel = access
+            .endpoint(&args.addr)
             .with_context(|| format!("server address {:?}", args.addr))?
             .connect()
             .await

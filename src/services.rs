@@ -2,7 +2,7 @@
 //! `pcpn-trainer`, and the clients `weights` and `healthcheck`. They run the same
 //! learner and actor code as `saver train`, with gRPC between them.
 
-use crate::access::{ServerAccess, TokenArgs};
+use crate::access::{client_tls, ClientArgs, ServerAccess};
 use crate::config::RunArgs;
 use crate::pretrain::obtain_pcpn;
 use crate::train::{default_run_dir, follow, report, start_learner};
@@ -67,6 +67,9 @@ pub struct LearnerArgs {
     /// local store in --pcpn-dir.
     #[arg(long)]
     pub pcpn: Option<String>,
+    /// CA certificate (PEM) of an https:// --pcpn store.
+    #[arg(long, value_name = "FILE")]
+    pub pcpn_ca: Option<PathBuf>,
     /// Local PCPN store (when --pcpn is not given).
     #[arg(long, default_value = "pcpn-cache")]
     pub pcpn_dir: PathBuf,
@@ -100,6 +103,10 @@ fn positive_secs(s: &str) -> Result<f64, String> {
 pub fn learner(args: LearnerArgs) -> Result<()> {
     let config = args.run.resolve()?;
     let check = args.access.check(args.listen)?;
+    let pcpn_access = saver_proto::ClientAccess {
+        token: args.access.token.client()?,
+        tls: args.pcpn_ca.as_deref().map(client_tls).transpose()?,
+    };
     let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join("config.toml"), crate::config::to_toml(&config))?;
@@ -108,7 +115,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         (Algo::A2c, _) => None,
         (Algo::Saver, Some(url)) if url.starts_with("http://") || url.starts_with("https://") => {
             let bytes = rt
-                .block_on(fetch(url, &config, args.access.token.client()?))
+                .block_on(fetch(url, &config, &pcpn_access))
                 .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
             let shown = PathBuf::from(format!("{url} ({})", config.env));
             let (pcpn, info) = load_pcpn_bytes(&bytes, &shown, &config.env, &saver_core::device())
@@ -189,9 +196,9 @@ pub struct ActorArgs {
     /// after losing it); until then reconnect with jittered backoff.
     #[arg(long, default_value_t = 600)]
     pub connect_timeout: u64,
-    /// The learner's token.
+    /// The learner's token and CA.
     #[command(flatten)]
-    pub token: TokenArgs,
+    pub access: ClientArgs,
 }
 
 /// Delay before reconnect attempt `n` (0, 1, …): 100 ms doubling up to 5 s, times a
@@ -208,7 +215,7 @@ pub fn actor(args: ActorArgs) -> Result<()> {
         .name
         .clone()
         .unwrap_or_else(|| format!("actor-{}", std::process::id()));
-    let token = args.token.client()?;
+    let access = args.access.access()?;
     let give_up = Duration::from_secs(args.connect_timeout);
     let stop = AtomicBool::new(false);
     let mut total = ActorSummary::default();
@@ -220,7 +227,7 @@ pub fn actor(args: ActorArgs) -> Result<()> {
             session: rand::random(),
             n_envs: args.envs,
         };
-        let outcome = GrpcLink::connect_with(&args.learner, token.clone())
+        let outcome = GrpcLink::connect_with(&args.learner, &access)
             .map_err(ActorError::from)
             .and_then(|mut link| run_actor(&mut link, &reg, &stop));
         let why = match outcome {

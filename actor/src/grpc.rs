@@ -6,7 +6,7 @@ use saver_core::link::{Assignment, LearnerLink, LinkError, PolicyWeights, Regist
 use saver_core::rollout::Rollout;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
-use saver_proto::AddToken;
+use saver_proto::{AddToken, ClientAccess};
 use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
 use std::sync::Arc;
 use tokio::sync::{mpsc, watch};
@@ -55,22 +55,23 @@ pub fn decode_weights(w: &pb::Weights) -> Result<PolicyWeights, LinkError> {
 impl GrpcLink {
     /// Connects to `url` (e.g. `http://127.0.0.1:50051`) without a token.
     pub fn connect(url: &str) -> Result<Self, LinkError> {
-        Self::connect_with(url, AddToken::default())
+        Self::connect_with(url, &ClientAccess::default())
     }
 
-    /// Connects to `url`, sending `token` on every call.
-    pub fn connect_with(url: &str, token: AddToken) -> Result<Self, LinkError> {
+    /// Connects to `url` with `access`'s token (on every call) and TLS settings.
+    pub fn connect_with(url: &str, access: &ClientAccess) -> Result<Self, LinkError> {
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .enable_all()
             .build()
             .map_err(|e| LinkError::Closed(format!("starting the link runtime: {e}")))?;
-        let endpoint = saver_proto::endpoint(url)
+        let endpoint = access
+            .endpoint(url)
             .map_err(|e| LinkError::Rejected(format!("learner address {url:?}: {e}")))?;
         let channel = rt
             .block_on(endpoint.connect())
             .map_err(|e| LinkError::Closed(format!("connecting to {url}: {e}")))?;
-        let client = LearnerClient::with_interceptor(channel, token)
+        let client = LearnerClient::with_interceptor(channel, access.token.clone())
             .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
         let (closed_tx, closed) = watch::channel(None);

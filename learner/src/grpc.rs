@@ -9,7 +9,7 @@ use saver_core::rollout::Rollout;
 use saver_core::CoreError;
 use saver_proto::pb::learner_server::{Learner, LearnerServer};
 use saver_proto::pb::{self, RolloutAck};
-use saver_proto::CheckToken;
+use saver_proto::{Access, CheckToken};
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -46,8 +46,8 @@ pub struct LearnerService {
     weights: watch::Receiver<EncodedWeights>,
     /// Extra status the trainer reports (steps, mean episode length, finished).
     status: watch::Receiver<TrainerStatus>,
-    /// The token every call must carry (none by default).
-    access: CheckToken,
+    /// The token every call must carry and the TLS identity (none by default).
+    access: Access,
 }
 
 /// What the trainer side tells the service for `Status`.
@@ -142,25 +142,26 @@ impl LearnerService {
                 hub,
                 weights: rx,
                 status: status_rx,
-                access: CheckToken::default(),
+                access: Access::default(),
             },
             status_tx,
         )
     }
 
-    /// Requires `access`'s token on every call.
-    pub fn with_access(mut self, access: CheckToken) -> Self {
+    /// Requires `access`'s token on every call and serves TLS when it has a
+    /// certificate.
+    pub fn with_access(mut self, access: Access) -> Self {
         self.access = access;
         self
     }
 
     /// The tonic server for this service: message size limits set, token checked.
     pub fn into_server(self) -> InterceptedService<LearnerServer<Self>, CheckToken> {
-        let access = self.access.clone();
+        let check = self.access.check.clone();
         let server = LearnerServer::new(self)
             .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
-        InterceptedService::new(server, access)
+        InterceptedService::new(server, check)
     }
 
     fn weights_reply(w: &EncodedWeights) -> pb::Weights {
@@ -357,7 +358,9 @@ pub async fn serve(
 ) -> Result<(), tonic::transport::Error> {
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<LearnerServer<LearnerService>>().await;
-    saver_proto::server()
+    service
+        .access
+        .server()?
         .add_service(health_service)
         .add_service(service.into_server())
         .serve_with_incoming_shutdown(

@@ -8,7 +8,7 @@ use saver_core::config::{Algo, RunConfig};
 use saver_core::env::EnvSpec;
 use saver_proto::pb::pcpn_store_server::{PcpnStore as PcpnStoreApi, PcpnStoreServer};
 use saver_proto::pb::{self, PcpnChunk};
-use saver_proto::{AddToken, CheckToken};
+use saver_proto::{Access, CheckToken, ClientAccess};
 use std::path::PathBuf;
 use std::sync::Arc;
 use tokio::sync::Mutex;
@@ -28,8 +28,8 @@ pub struct PcpnService {
     dir: PathBuf,
     /// One pretraining at a time (a second request for the same spec then finds the file).
     pretraining: Arc<Mutex<()>>,
-    /// The token every call must carry (none by default).
-    access: CheckToken,
+    /// The token every call must carry and the TLS identity (none by default).
+    access: Access,
 }
 
 /// The info message of a PCPN file's bytes.
@@ -58,21 +58,22 @@ impl PcpnService {
             store: PcpnStore::new(&dir),
             dir,
             pretraining: Arc::new(Mutex::new(())),
-            access: CheckToken::default(),
+            access: Access::default(),
         }
     }
 
     /// The tonic server with the message size limits set.
     pub fn into_server(self) -> InterceptedService<PcpnStoreServer<Self>, CheckToken> {
-        let access = self.access.clone();
+        let check = self.access.check.clone();
         let server = PcpnStoreServer::new(self)
             .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
-        InterceptedService::new(server, access)
+        InterceptedService::new(server, check)
     }
 
-    /// Requires `access`'s token on every call.
-    pub fn with_access(mut self, access: CheckToken) -> Self {
+    /// Requires `access`'s token on every call and serves TLS when it has a
+    /// certificate.
+    pub fn with_access(mut self, access: Access) -> Self {
         self.access = access;
         self
     }
@@ -221,7 +222,9 @@ pub async fn serve(
 ) -> Result<(), tonic::transport::Error> {
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<PcpnStoreServer<PcpnService>>().await;
-    saver_proto::server()
+    service
+        .access
+        .server()?
         .add_service(health_service)
         .add_service(service.into_server())
         .serve_with_incoming_shutdown(
@@ -234,18 +237,23 @@ pub async fn serve(
 /// Fetches the PCPN of `config.env` from a store at `url` (asking it to pretrain one
 /// with `config`'s pretraining settings if it has none); returns the file's bytes after
 /// checking their length and sha256.
-pub async fn fetch(url: &str, config: &RunConfig, token: AddToken) -> Result<Vec<u8>, Status> {
+pub async fn fetch(
+    url: &str,
+    config: &RunConfig,
+    access: &ClientAccess,
+) -> Result<Vec<u8>, Status> {
     let spec = &config.env;
     use saver_proto::pb::pcpn_store_client::PcpnStoreClient;
     use tokio_stream::StreamExt;
     let unavailable =
-        |e: tonic::transport::Error| Status::unavailable(format!("the PCPN store {url}: {e}"));
-    let channel = saver_proto::endpoint(url)
-        .map_err(unavailable)?
+        |e: &dyn std::fmt::Display| Status::unavailable(format!("the PCPN store {url}: {e}"));
+    let channel = access
+        .endpoint(url)
+        .map_err(|e| unavailable(&e))?
         .connect()
         .await
-        .map_err(unavailable)?;
-    let mut client = PcpnStoreClient::with_interceptor(channel, token)
+        .map_err(|e| unavailable(&e))?;
+    let mut client = PcpnStoreClient::with_interceptor(channel, access.token.clone())
         .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
     let env = Some(pb::EnvSpec::from(spec));
     client

@@ -1,12 +1,14 @@
 //! What every SAVER server and client agrees on beyond the messages: the shared token
-//! (sent as `authorization: Bearer <token>` on every call and checked by the servers)
-//! and the HTTP/2 settings of both ends (keepalive, so that a cut link is noticed).
+//! (sent as `authorization: Bearer <token>` on every call and checked by the servers),
+//! TLS (rustls) when a server has a certificate, and the HTTP/2 settings of both ends
+//! (keepalive, so that a cut link is noticed).
 
 use std::sync::Arc;
 use std::time::Duration;
 use tonic::metadata::{Ascii, MetadataValue};
 use tonic::service::Interceptor;
-use tonic::transport::Endpoint;
+pub use tonic::transport::{Certificate, ClientTlsConfig, Identity, ServerTlsConfig};
+use tonic::transport::{Endpoint, Server};
 use tonic::{Request, Status};
 
 /// Metadata key that carries the token.
@@ -112,6 +114,68 @@ impl Interceptor for AddToken {
     }
 }
 
+/// A server's access settings: the token it requires and its TLS identity.
+#[derive(Clone, Default)]
+pub struct Access {
+    /// Checks the token.
+    pub check: CheckToken,
+    /// Serve TLS with this certificate and key (`None`: plain HTTP/2).
+    pub tls: Option<ServerTlsConfig>,
+}
+
+impl Access {
+    /// Only a token check, no TLS.
+    pub fn token(check: CheckToken) -> Self {
+        Self { check, tls: None }
+    }
+
+    /// The transport of a server with these settings (see [`server`]).
+    pub fn server(&self) -> Result<Server, tonic::transport::Error> {
+        match &self.tls {
+            Some(tls) => server().tls_config(tls.clone()),
+            None => Ok(server()),
+        }
+    }
+}
+
+/// What a client sends and trusts: the token, and for `https://` URLs the CA that
+/// signed the server's certificate.
+#[derive(Clone, Default)]
+pub struct ClientAccess {
+    /// Adds the token.
+    pub token: AddToken,
+    /// TLS settings (the CA) for https URLs.
+    pub tls: Option<ClientTlsConfig>,
+}
+
+/// Why a client cannot reach a server.
+#[derive(Debug, thiserror::Error)]
+pub enum ConnectError {
+    /// The URL or TLS settings are unusable.
+    #[error("{0}")]
+    Setup(String),
+    /// The transport failed.
+    #[error(transparent)]
+    Transport(#[from] tonic::transport::Error),
+}
+
+impl ClientAccess {
+    /// An endpoint for `url` (see [`endpoint`]) with TLS for `https://`.
+    pub fn endpoint(&self, url: &str) -> Result<Endpoint, ConnectError> {
+        let e = endpoint(url)?;
+        match (&self.tls, url.starts_with("https://")) {
+            (Some(tls), true) => Ok(e.tls_config(tls.clone())?),
+            (None, true) => Err(ConnectError::Setup(format!(
+                "{url} is https: give the CA that signed its certificate (--tls-ca)"
+            ))),
+            (Some(_), false) => Err(ConnectError::Setup(format!(
+                "a CA was given but {url} is not https://"
+            ))),
+            (None, false) => Ok(e),
+        }
+    }
+}
+
 /// A client endpoint for `url` with the settings of every SAVER client: no Nagle
 /// delay, windows that hold a weights message, keepalive pings while idle.
 pub fn endpoint(url: &str) -> Result<Endpoint, tonic::transport::Error> {
@@ -125,7 +189,7 @@ pub fn endpoint(url: &str) -> Result<Endpoint, tonic::transport::Error> {
         .keep_alive_while_idle(true))
 }
 
-/// The transport settings every SAVER server uses: no Nagle delay, HTTP/2 windows
+/// The transport settings every SAVER server uses (see [`Access::server`] for TLS): no Nagle delay, HTTP/2 windows
 /// that hold a whole weights message, keepalive pings (a peer behind a cut link is
 /// dropped, so its streams end and a sync round stops waiting for it).
 pub fn server() -> tonic::transport::Server {

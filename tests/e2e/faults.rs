@@ -11,7 +11,7 @@ use saver_core::link::{LearnerLink, LinkError, Registration};
 use saver_learner::grpc::{serve, LearnerService};
 use saver_learner::InProcessLink;
 use saver_proto::pb::learner_client::LearnerClient;
-use saver_proto::{pb, AddToken, CheckToken};
+use saver_proto::{pb, Access, AddToken, CheckToken, ClientAccess};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -30,7 +30,7 @@ fn every_learner_call_needs_the_token() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let (service, _status) = LearnerService::new(learner.hub.clone());
-    let service = service.with_access(CheckToken::new(Some("tok-1")).unwrap());
+    let service = service.with_access(Access::token(CheckToken::new(Some("tok-1")).unwrap()));
     let listener = rt
         .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
         .unwrap();
@@ -65,7 +65,14 @@ fn every_learner_call_needs_the_token() {
         Err(LinkError::Rejected(why)) => assert!(why.contains("token"), "{why}"),
         other => panic!("expected a refusal, got {other:?}"),
     }
-    let mut link = GrpcLink::connect_with(&url, AddToken::new(Some("tok-1")).unwrap()).unwrap();
+    let mut link = GrpcLink::connect_with(
+        &url,
+        &ClientAccess {
+            token: AddToken::new(Some("tok-1")).unwrap(),
+            tls: None,
+        },
+    )
+    .unwrap();
     assert_eq!(link.register(&reg).unwrap().actor_id, 0);
     assert_eq!(learner.hub.actors().len(), 1);
     learner.hub.close("test over");

@@ -219,7 +219,7 @@ fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
     ));
     let config = RunConfig::paper(d4, Algo::Saver, 1);
     let err = rt
-        .block_on(fetch(&url, &config, saver_proto::AddToken::default()))
+        .block_on(fetch(&url, &config, &saver_proto::ClientAccess::default()))
         .unwrap_err();
     assert_eq!(err.code(), tonic::Code::FailedPrecondition, "{err}");
     assert!(err.message().contains("angle-d2"), "{err}");

@@ -6,6 +6,7 @@ mod grpc;
 mod hostile;
 mod learning;
 mod processes;
+mod tls;
 
 use std::path::PathBuf;
 

@@ -6,7 +6,7 @@ use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
 /// A child process killed when dropped (also when a test fails).
-struct Proc(Child);
+pub struct Proc(pub Child);
 
 impl Drop for Proc {
     fn drop(&mut self) {
@@ -16,7 +16,7 @@ impl Drop for Proc {
 }
 
 /// Starts `saver args…` and returns it with the address it reports ("… on ADDR").
-fn serve(args: &[&str]) -> (Proc, String) {
+pub fn serve(args: &[&str]) -> (Proc, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_saver"))
         .args(args)
         .stderr(Stdio::piped())
@@ -39,7 +39,7 @@ fn serve(args: &[&str]) -> (Proc, String) {
     (Proc(child), format!("http://{addr}"))
 }
 
-fn saver(args: &[&str]) -> std::process::Output {
+pub fn saver(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_saver"))
         .args(args)
         .output()
