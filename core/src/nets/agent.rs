@@ -25,6 +25,12 @@ impl HeadConfig {
         mu_bound: None,
         log_std_bounds: None,
     };
+    /// μ in [-1, 1] (tanh) and log σ in [-4.6, 0] (σ in [0.01, 1]): the ranges the
+    /// PCPN's pretraining samples cover.
+    pub const IN_PCPN_DOMAIN: Self = Self {
+        mu_bound: Some(1.0),
+        log_std_bounds: Some((-4.6, 0.0)),
+    };
 
     /// Applies the bound to one raw mean.
     pub fn mu(&self, raw: f32) -> f32 {
