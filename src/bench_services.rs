@@ -122,6 +122,7 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                     vector_reward: vec![0.01; n * layout.aligned_dim],
                     done: vec![false; n],
                     episodes: vec![],
+                    actor_state: None,
                 };
                 let msg = pb::Rollout::from(&template);
                 let (tx, rxs) = tokio::sync::mpsc::channel(64);

@@ -7,13 +7,13 @@ use crate::plot::plot_runs;
 use crate::pretrain::obtain_pcpn;
 use crate::progress::Progress;
 use anyhow::{anyhow, Context, Result};
-use saver_actor::run_actor;
+use saver_actor::run_actor_from;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::link::{PolicyWeights, Registration};
 use saver_core::nets::Pcpn;
 use saver_learner::{
-    spawn_trainer, Counters, Hub, InProcessLink, MetricsRow, TrainerHandle, TrainerOptions,
-    TrainerOutcome,
+    spawn_trainer, ActorStates, Counters, Hub, InProcessLink, MetricsRow, TrainerHandle,
+    TrainerOptions, TrainerOutcome,
 };
 use saver_pcpn_trainer::PcpnStore;
 use std::path::{Path, PathBuf};
@@ -88,6 +88,8 @@ pub struct LocalLearner {
     pub rows: mpsc::Receiver<MetricsRow>,
     /// Counters it started from (non-zero when resumed).
     pub start: Counters,
+    /// In-process actors saved in the resumed checkpoint, by id.
+    pub actors: Arc<ActorStates>,
 }
 
 /// Builds the algorithm around `pcpn` (SAVER) or none (A2C), resumes it from `out`'s
@@ -105,7 +107,7 @@ pub fn start_learner(
     let mut algo = saver_core::algo::build(config, pcpn, &dev)?;
     let resumed = saver_learner::resume(out, config, algo.as_mut())
         .with_context(|| format!("resuming from {}", out.display()))?;
-    if let Some(c) = &resumed {
+    if let Some((c, _)) = &resumed {
         eprintln!(
             "resuming {} from its checkpoint: version {}, {} steps, {} episodes",
             out.display(),
@@ -114,7 +116,7 @@ pub fn start_learner(
             c.episodes
         );
     }
-    let start = resumed.unwrap_or_default();
+    let (start, actors) = resumed.unwrap_or_default();
     let initial = PolicyWeights {
         version: start.version,
         tensors: algo.policy_tensors()?,
@@ -125,6 +127,7 @@ pub fn start_learner(
         rows: Some(row_tx),
         checkpoint_every,
         start,
+        actors: actors.clone(),
         ..TrainerOptions::new(out.to_path_buf(), stop)
     };
     let trainer = spawn_trainer(algo, hub.clone(), rx, opts)?;
@@ -133,6 +136,7 @@ pub fn start_learner(
         trainer,
         rows,
         start,
+        actors: Arc::new(actors),
     })
 }
 
@@ -184,6 +188,7 @@ pub fn train_with(
     for i in 0..config.actors {
         let mut link = InProcessLink::new(learner.hub.clone());
         let stop = stop.clone();
+        let saved = learner.actors.clone();
         let reg = Registration {
             name: format!("embedded-{i}"),
             session: rand::random(),
@@ -192,7 +197,7 @@ pub fn train_with(
         actors.push(
             std::thread::Builder::new()
                 .name(format!("saver-actor-{i}"))
-                .spawn(move || run_actor(&mut link, &reg, &stop))?,
+                .spawn(move || run_actor_from(&mut link, &reg, &stop, &saved))?,
         );
     }
     let (hub, outcome) = follow(learner, config, show, |_| {})?;

@@ -8,8 +8,10 @@ use saver_core::env::{Env, EnvLayout};
 use saver_core::link::{Assignment, LearnerLink, LinkError, Registration};
 use saver_core::nets::{Action, Policy};
 use saver_core::rng::{rng_for, streams, SaverRng};
-use saver_core::rollout::{Episode, Rollout};
+use saver_core::rollout::{ActorState, Episode, Rollout};
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 /// Errors of an actor.
 #[derive(Debug, thiserror::Error)]
@@ -106,6 +108,7 @@ impl Actor {
             vector_reward: Vec::with_capacity(e * n * l.aligned_dim),
             done: Vec::with_capacity(e * n),
             episodes: Vec::new(),
+            actor_state: None,
         };
         self.seq += 1;
         let mut act = Action::default();
@@ -137,7 +140,43 @@ impl Actor {
             }
             r.obs.extend_from_slice(&self.obs[i]);
         }
+        r.actor_state = Some(Arc::new(self.state()));
         r
+    }
+
+    /// Its state between rollouts (for the learner's checkpoint).
+    pub fn state(&self) -> ActorState {
+        ActorState {
+            envs: self.envs.iter().map(|e| e.snapshot()).collect(),
+            obs: self.obs.clone(),
+            running: self.running.clone(),
+            rng_word_pos: self.rng.get_word_pos(),
+            seq: self.seq,
+        }
+    }
+
+    /// Puts the actor back into a saved state (same env count).
+    pub fn restore(&mut self, s: &ActorState) -> Result<(), saver_core::CoreError> {
+        let n = self.envs.len();
+        if s.envs.len() != n || s.obs.len() != n || s.running.len() != n {
+            return Err(saver_core::CoreError::Checkpoint(format!(
+                "a saved actor with {} envs cannot resume one with {n}",
+                s.envs.len()
+            )));
+        }
+        for (env, state) in self.envs.iter_mut().zip(&s.envs) {
+            env.restore(state)?;
+        }
+        if s.obs.iter().any(|o| o.len() != self.layout.obs_dim) {
+            return Err(saver_core::CoreError::Checkpoint(
+                "a saved observation has the wrong length".into(),
+            ));
+        }
+        self.obs = s.obs.clone();
+        self.running = s.running.clone();
+        self.rng.set_word_pos(s.rng_word_pos);
+        self.seq = s.seq;
+        Ok(())
     }
 }
 
@@ -150,9 +189,23 @@ pub fn run_actor(
     reg: &Registration,
     stop: &AtomicBool,
 ) -> Result<ActorSummary, ActorError> {
+    run_actor_from(link, reg, stop, &BTreeMap::new())
+}
+
+/// [`run_actor`] for a resumed run: an actor whose id has a state in `saved` (from
+/// the learner's checkpoint) continues from it instead of starting its envs afresh.
+pub fn run_actor_from(
+    link: &mut dyn LearnerLink,
+    reg: &Registration,
+    stop: &AtomicBool,
+    saved: &BTreeMap<u32, ActorState>,
+) -> Result<ActorSummary, ActorError> {
     let assignment = link.register(reg)?;
     let layout = assignment.config.env.layout();
     let mut actor = Actor::new(&assignment, reg.session, reg.n_envs as usize);
+    if let Some(s) = saved.get(&assignment.actor_id) {
+        actor.restore(s)?;
+    }
     let mut summary = ActorSummary::default();
     let mut want = 0u64;
     while !stop.load(Ordering::Relaxed) {

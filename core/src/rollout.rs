@@ -5,6 +5,7 @@
 
 use crate::env::EnvLayout;
 use crate::{CoreError, Result};
+use std::sync::Arc;
 
 /// An episode that finished inside a rollout.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -50,6 +51,73 @@ pub struct Rollout {
     pub done: Vec<bool>,
     /// Episodes that finished in this rollout.
     pub episodes: Vec<Episode>,
+    /// The actor's state right after this rollout (in-process actors only; it never
+    /// crosses the wire): what a checkpoint needs to resume the actor exactly.
+    pub actor_state: Option<Arc<ActorState>>,
+}
+
+/// An actor between two rollouts: its envs, their current observations and running
+/// episodes, the position of its random stream and its next sequence number.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ActorState {
+    /// [`crate::env::Env::snapshot`] of each env.
+    pub envs: Vec<Vec<f32>>,
+    /// Current observation of each env.
+    pub obs: Vec<Vec<f32>>,
+    /// Steps and scalar return of each env's running episode.
+    pub running: Vec<(u32, f32)>,
+    /// Word position of the actor's ChaCha8 stream.
+    pub rng_word_pos: u128,
+    /// Next sequence number.
+    pub seq: u64,
+}
+
+impl ActorState {
+    /// As one f32 tensor (a row per env: env state, observation, steps, return) and
+    /// the two counters, for a checkpoint.
+    pub fn to_rows(&self) -> (Vec<usize>, Vec<f32>) {
+        let width =
+            self.envs.first().map_or(0, Vec::len) + self.obs.first().map_or(0, Vec::len) + 2;
+        let mut data = Vec::with_capacity(self.envs.len() * width);
+        for ((e, o), (steps, ret)) in self.envs.iter().zip(&self.obs).zip(&self.running) {
+            data.extend_from_slice(e);
+            data.extend_from_slice(o);
+            data.push(*steps as f32);
+            data.push(*ret);
+        }
+        (vec![self.envs.len(), width], data)
+    }
+
+    /// Inverse of [`ActorState::to_rows`] for envs whose snapshot has `env_len`
+    /// numbers and observations `obs_len`.
+    pub fn from_rows(
+        shape: &[usize],
+        data: &[f32],
+        env_len: usize,
+        obs_len: usize,
+        rng_word_pos: u128,
+        seq: u64,
+    ) -> Result<Self> {
+        let width = env_len + obs_len + 2;
+        if shape.len() != 2 || shape[1] != width || data.len() != shape[0] * width {
+            return Err(CoreError::Checkpoint(format!(
+                "an actor state of shape {shape:?} does not fit rows of {width}"
+            )));
+        }
+        let mut s = Self {
+            envs: Vec::new(),
+            obs: Vec::new(),
+            running: Vec::new(),
+            rng_word_pos,
+            seq,
+        };
+        for row in data.chunks_exact(width) {
+            s.envs.push(row[..env_len].to_vec());
+            s.obs.push(row[env_len..env_len + obs_len].to_vec());
+            s.running.push((row[width - 2] as u32, row[width - 1]));
+        }
+        Ok(s)
+    }
 }
 
 impl Rollout {

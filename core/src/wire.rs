@@ -107,6 +107,7 @@ impl TryFrom<pb::Rollout> for Rollout {
             state_delta: r.state_delta,
             vector_reward: r.vector_reward,
             done: r.done,
+            actor_state: None,
             episodes: r
                 .episodes
                 .into_iter()

@@ -4,9 +4,13 @@
 use saver_core::algo::Algorithm;
 use saver_core::checkpoint;
 use saver_core::config::RunConfig;
+use saver_core::rollout::ActorState;
 use saver_core::{CoreError, Result};
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
+
+/// Saved in-process actors by id (sync runs), so that a resumed run continues exactly.
+pub type ActorStates = BTreeMap<u32, ActorState>;
 
 /// Counters saved in checkpoints.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -23,13 +27,13 @@ pub struct Counters {
 pub const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
 
 /// Loads `run_dir`'s checkpoint into `algo` if there is one and returns its counters
-/// (`None`: no checkpoint, a fresh run). A checkpoint of another config is an error:
-/// resuming it would mix two runs.
+/// and saved actors (`None`: no checkpoint, a fresh run). A checkpoint of another
+/// config is an error: resuming it would mix two runs.
 pub fn resume(
     run_dir: &Path,
     config: &RunConfig,
     algo: &mut dyn Algorithm,
-) -> Result<Option<Counters>> {
+) -> Result<Option<(Counters, ActorStates)>> {
     let path = run_dir.join(CHECKPOINT_FILE);
     if !path.exists() {
         return Ok(None);
@@ -73,19 +77,46 @@ pub fn resume(
             .map_err(|_| CoreError::Checkpoint(format!("{}: bad rng_word_pos", path.display())))?;
         algo.set_rng_word_pos(pos);
     }
-    Ok(Some(Counters {
+    let counters = Counters {
         version: num("version")? as u64,
         steps: num("steps")? as u64,
         episodes: num("episodes")? as u64,
-    }))
+    };
+    // Saved actors: `actor.<id>.state` rows, `actor.<id>.rng` and `.seq` metadata.
+    let env_len = config.env.make(config.max_episode_steps).snapshot().len();
+    let obs_len = config.env.layout().obs_dim;
+    let mut actors = ActorStates::new();
+    for t in &c.tensors {
+        let Some(id) = t
+            .name
+            .strip_prefix("actor.")
+            .and_then(|r| r.strip_suffix(".state"))
+        else {
+            continue;
+        };
+        let bad = || CoreError::Checkpoint(format!("{}: bad saved actor {id}", path.display()));
+        let id: u32 = id.parse().map_err(|_| bad())?;
+        let rng = num(&format!("actor.{id}.rng"))?;
+        let seq = num(&format!("actor.{id}.seq"))? as u64;
+        let state = ActorState::from_rows(&t.shape, &t.data, env_len, obs_len, rng, seq)?;
+        actors.insert(id, state);
+    }
+    Ok(Some((counters, actors)))
 }
 
 const CHECKPOINT_FORMAT: &str = "saver-learner-checkpoint/1";
 
 /// Writes the learner's checkpoint to `path` atomically: every tensor of `algo` and
-/// its optimiser, the counters, the tau-stream position, the config and its hash.
-pub fn save(path: &Path, algo: &dyn Algorithm, c: &Counters, config: &RunConfig) -> Result<()> {
-    let tensors = checkpoint::to_named_all(&algo.state_tensors()?)?;
+/// its optimiser, the counters, the tau-stream position, the saved actors, the config
+/// and its hash.
+pub fn save(
+    path: &Path,
+    algo: &dyn Algorithm,
+    c: &Counters,
+    actors: &ActorStates,
+    config: &RunConfig,
+) -> Result<()> {
+    let mut tensors = checkpoint::to_named_all(&algo.state_tensors()?)?;
     let mut meta = HashMap::from([
         ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
         ("version".to_string(), c.version.to_string()),
@@ -103,6 +134,16 @@ pub fn save(path: &Path, algo: &dyn Algorithm, c: &Counters, config: &RunConfig)
     ]);
     if let Some(pos) = algo.rng_word_pos() {
         meta.insert("rng_word_pos".to_string(), pos.to_string());
+    }
+    for (id, a) in actors {
+        let (shape, data) = a.to_rows();
+        tensors.push(saver_proto::NamedTensor {
+            name: format!("actor.{id}.state"),
+            shape,
+            data,
+        });
+        meta.insert(format!("actor.{id}.rng"), a.rng_word_pos.to_string());
+        meta.insert(format!("actor.{id}.seq"), a.seq.to_string());
     }
     checkpoint::save(path, &tensors, &meta)?;
     Ok(())

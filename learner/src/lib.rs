@@ -12,7 +12,7 @@ mod inproc;
 pub mod metrics;
 pub mod trainer;
 
-pub use checkpoint::{resume, Counters, CHECKPOINT_FILE};
+pub use checkpoint::{resume, ActorStates, Counters, CHECKPOINT_FILE};
 pub use hub::{Hub, HubStats, DEFAULT_ROUND_TIMEOUT};
 pub use inproc::InProcessLink;
 pub use metrics::{EpisodeWindow, MetricsRow};

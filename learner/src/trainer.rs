@@ -2,7 +2,7 @@
 //! current version, batched in actor-id order), updates, publishes, logs, checkpoints.
 //! It blocks on std primitives and never runs on an async runtime.
 
-use crate::checkpoint::{save, Counters, CHECKPOINT_FILE};
+use crate::checkpoint::{save, ActorStates, Counters, CHECKPOINT_FILE};
 use crate::metrics::{EpisodeWindow, MetricsCsv, MetricsRow};
 use crate::Hub;
 use saver_core::algo::Algorithm;
@@ -58,6 +58,8 @@ pub struct TrainerOptions {
     /// Where the counters start: zero, or a resumed checkpoint's (see
     /// [`crate::resume`]).
     pub start: Counters,
+    /// In-process actors as the resumed checkpoint saved them (empty for a fresh run).
+    pub actors: ActorStates,
 }
 
 impl TrainerOptions {
@@ -69,6 +71,7 @@ impl TrainerOptions {
             stop,
             checkpoint_every: 0,
             start: Counters::default(),
+            actors: ActorStates::new(),
         }
     }
 }
@@ -135,6 +138,9 @@ impl Trainer {
         let wait = self.hub.wait_for_actors(config.actors as usize);
         let mut window = EpisodeWindow::default();
         let mut c = opts.start;
+        // Sync mode: the actors' states after the last round, saved with the weights
+        // they lead to, so that a resumed run continues exactly.
+        let mut actors = opts.actors.clone();
         let checkpoint = run_dir.join(CHECKPOINT_FILE);
         let mut stale_dropped = 0u64;
         let mut interrupted = wait.is_err();
@@ -156,6 +162,12 @@ impl Trainer {
             let batch = Batch::from_rollouts(&round, &config.env.layout())?;
             let stats = self.algo.update(&batch)?;
             c.version += 1;
+            if config.mode == Mode::Sync {
+                actors = round
+                    .iter()
+                    .filter_map(|r| Some((r.actor_id, r.actor_state.as_deref()?.clone())))
+                    .collect();
+            }
             c.steps += batch.steps;
             self.hub.publish(Arc::new(PolicyWeights {
                 version: c.version,
@@ -182,10 +194,10 @@ impl Trainer {
                 let _ = tx.send(row);
             }
             if opts.checkpoint_every > 0 && c.version.is_multiple_of(opts.checkpoint_every) {
-                save(&checkpoint, self.algo.as_ref(), &c, &config)?;
+                save(&checkpoint, self.algo.as_ref(), &c, &actors, &config)?;
             }
         }
-        save(&checkpoint, self.algo.as_ref(), &c, &config)?;
+        save(&checkpoint, self.algo.as_ref(), &c, &actors, &config)?;
         Ok(TrainerOutcome {
             version: c.version,
             steps: c.steps,

@@ -103,4 +103,12 @@ impl Env for Arm {
     fn steps(&self) -> u32 {
         self.steps
     }
+
+    fn snapshot(&self) -> Vec<f32> {
+        super::snapshot_of(&self.angles, &self.goal, self.steps)
+    }
+
+    fn restore(&mut self, state: &[f32]) -> crate::Result<()> {
+        super::restore_into(state, &mut self.angles, &mut self.goal, &mut self.steps)
+    }
 }

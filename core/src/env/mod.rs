@@ -194,6 +194,43 @@ pub trait Env: Send {
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
     /// Steps taken in the current episode.
     fn steps(&self) -> u32;
+    /// The whole state (position or angles, goal, step count) as numbers, for
+    /// checkpoints of a run's actors.
+    fn snapshot(&self) -> Vec<f32>;
+    /// Restores [`Env::snapshot`]; refuses a state of another length.
+    fn restore(&mut self, state: &[f32]) -> Result<()>;
+}
+
+/// [`Env::snapshot`] of an env made of a position, a goal and a step count.
+pub(crate) fn snapshot_of(pos: &[f32], goal: &[f32], steps: u32) -> Vec<f32> {
+    let mut s = Vec::with_capacity(pos.len() + goal.len() + 1);
+    s.extend_from_slice(pos);
+    s.extend_from_slice(goal);
+    // Exact: step counts stay far below 2^24.
+    s.push(steps as f32);
+    s
+}
+
+/// [`Env::restore`] of an env made of a position, a goal and a step count.
+pub(crate) fn restore_into(
+    state: &[f32],
+    pos: &mut [f32],
+    goal: &mut [f32],
+    steps: &mut u32,
+) -> Result<()> {
+    let (n, m) = (pos.len(), goal.len());
+    let last = state.get(n + m).copied().unwrap_or(-1.0);
+    if state.len() != n + m + 1 || !(0.0..16_777_216.0).contains(&last) || last.fract() != 0.0 {
+        return Err(CoreError::Checkpoint(format!(
+            "an env state of {} numbers does not fit this env ({} expected)",
+            state.len(),
+            n + m + 1
+        )));
+    }
+    pos.copy_from_slice(&state[..n]);
+    goal.copy_from_slice(&state[n..n + m]);
+    *steps = last as u32;
+    Ok(())
 }
 
 /// Shared bookkeeping of the cube environments and the arm: the vector reward, strict

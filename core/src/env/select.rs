@@ -75,4 +75,12 @@ impl Env for Select {
     fn steps(&self) -> u32 {
         self.steps
     }
+
+    fn snapshot(&self) -> Vec<f32> {
+        super::snapshot_of(&self.pos, &self.goal, self.steps)
+    }
+
+    fn restore(&mut self, state: &[f32]) -> crate::Result<()> {
+        super::restore_into(state, &mut self.pos, &mut self.goal, &mut self.steps)
+    }
 }
