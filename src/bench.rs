@@ -150,7 +150,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     for algo in [Algo::A2c, Algo::Saver] {
         for &d in &args.dims {
             let spec = EnvSpec::new(EnvKind::Angle, d)?;
-            let config = RunConfig::paper(spec, algo, 1);
+            let config = RunConfig::recommended(spec, algo, 1);
             let pcpn = (algo == Algo::Saver)
                 .then(|| random_pcpn(&spec, &dev))
                 .transpose()?;
@@ -182,12 +182,19 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let out = std::env::temp_dir().join(format!("saver-bench-{}", std::process::id()));
     for (algo, d) in [(Algo::A2c, 4), (Algo::Saver, 4)] {
         let spec = EnvSpec::new(EnvKind::Angle, d)?;
-        let mut config = RunConfig::paper(spec, algo, 0);
+        let mut config = RunConfig::recommended(spec, algo, 0);
         config.steps = args.cycle_updates * config.batch_transitions();
         let pcpn = (algo == Algo::Saver)
             .then(|| random_pcpn(&spec, &dev))
             .transpose()?;
-        let o = train_with(&config, &out, pcpn, Arc::new(AtomicBool::new(false)), false)?;
+        let run_dir = out.join(format!("{}-d{d}", algo.name()));
+        let o = train_with(
+            &config,
+            &run_dir,
+            pcpn,
+            Arc::new(AtomicBool::new(false)),
+            false,
+        )?;
         println!(
             "  {:<6} d={d}: {} updates in {:.2} s = {:.0} env steps/s ({:.2} ms per cycle)",
             algo.name(),

@@ -239,3 +239,29 @@ fn pretraining_that_diverges_stops_with_an_error_and_saves_nothing() {
     assert!(!store.join("pcpn-angle-d2.safetensors").exists());
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// `saver bench` end to end at a tiny size (no timing is asserted, only that every
+/// part runs and reports against the peak).
+#[test]
+fn bench_runs_every_part_and_reports_shares_of_peak() {
+    let o = saver(&[
+        "bench",
+        "--dims",
+        "2",
+        "--seconds",
+        "0.05",
+        "--cycle-updates",
+        "3",
+        "--no-services",
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    for want in [
+        "GFLOP/s",
+        "of peak",
+        "a2c    d=4: 3 updates",
+        "saver  d=4: 3 updates",
+    ] {
+        assert!(t.contains(want), "{want:?} missing from:\n{t}");
+    }
+}
