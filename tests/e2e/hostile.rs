@@ -1,6 +1,6 @@
 //! Hostile input at the learner's edge, over real gRPC: 100,000 malformed rollouts on
 //! one stream, each refused with the right status code, no panic, and weights that no
-//! refused rollout changed.
+//! refused rollout changed; then raw garbage at the port, after which it still serves.
 
 use crate::{assert_tensors_in, temp_dir};
 use rand::Rng;
@@ -214,6 +214,31 @@ fn a_hundred_thousand_hostile_rollouts_are_refused_and_change_nothing() {
         (refused, after_one)
     });
     assert_eq!(refused, CASES);
+
+    // Raw garbage at the port (random bytes, an HTTP/1.1 request, a cut-off HTTP/2
+    // preface): each connection is dropped, the learner keeps serving.
+    let addr = url.trim_start_matches("http://").to_string();
+    let mut junk = rng_for(8, 0);
+    let payloads: Vec<Vec<u8>> = vec![
+        (0..1 << 20).map(|_| junk.random::<u8>()).collect(),
+        b"GET / HTTP/1.1\r\nHost: x\r\n\r\n".to_vec(),
+        b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\xff\x01".to_vec(),
+    ];
+    for p in payloads {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(&addr).unwrap();
+        s.set_read_timeout(Some(std::time::Duration::from_secs(10)))
+            .unwrap();
+        let _ = s.write_all(&p);
+        let _ = s.shutdown(std::net::Shutdown::Write);
+        let mut sink = Vec::new();
+        let _ = s.read_to_end(&mut sink);
+    }
+    let status = rt.block_on(async {
+        let mut c = LearnerClient::connect(url.clone()).await.unwrap();
+        c.status(pb::StatusRequest {}).await.unwrap().into_inner()
+    });
+    assert_eq!(status.version, 1);
     assert_eq!(hub.stats.accepted.load(Ordering::Relaxed), 1);
     assert_eq!(hub.stats.rejected.load(Ordering::Relaxed), CASES as u64);
     // Nothing refused reached the trainer: still version 1, the same tensors.
