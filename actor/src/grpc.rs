@@ -9,6 +9,7 @@ use saver_proto::pb::learner_client::LearnerClient;
 use saver_proto::{AddToken, ClientAccess};
 use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
 use std::sync::Arc;
+use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::StreamExt;
 use tonic::service::interceptor::InterceptedService;
@@ -87,6 +88,49 @@ impl GrpcLink {
 
     fn closed_reason(&self) -> Option<LinkError> {
         self.closed.borrow().clone()
+    }
+
+    /// The newest weights once they reach `min_version`, or when `wait` (if any) has
+    /// passed, whichever comes first.
+    fn wait_weights(
+        &mut self,
+        min_version: u64,
+        wait: Option<Duration>,
+    ) -> Result<Arc<PolicyWeights>, LinkError> {
+        let mut rx = self
+            .weights
+            .clone()
+            .ok_or_else(|| LinkError::Rejected("register first".into()))?;
+        let mut closed = self.closed.clone();
+        let deadline = wait.map(|w| tokio::time::Instant::now() + w);
+        self.rt.block_on(async move {
+            loop {
+                let newest = rx.borrow_and_update().clone();
+                if let Some(w) = &newest {
+                    let late = deadline.is_some_and(|d| tokio::time::Instant::now() >= d);
+                    if w.version >= min_version || late {
+                        return Ok(w.clone());
+                    }
+                }
+                if let Some(e) = closed.borrow().clone() {
+                    return Err(e);
+                }
+                let until = async {
+                    match deadline {
+                        // With no weights at all yet there is nothing to fall back on.
+                        Some(d) if newest.is_some() => tokio::time::sleep_until(d).await,
+                        _ => std::future::pending().await,
+                    }
+                };
+                tokio::select! {
+                    r = rx.changed() => if r.is_err() {
+                        return Err(LinkError::Closed("weights stream ended".into()));
+                    },
+                    _ = closed.changed() => {}
+                    _ = until => {}
+                }
+            }
+        })
     }
 
     /// Opens the rollout and weight streams (after registration).
@@ -181,29 +225,15 @@ impl LearnerLink for GrpcLink {
     }
 
     fn weights(&mut self, min_version: u64) -> Result<Arc<PolicyWeights>, LinkError> {
-        let mut rx = self
-            .weights
-            .clone()
-            .ok_or_else(|| LinkError::Rejected("register first".into()))?;
-        let mut closed = self.closed.clone();
-        self.rt.block_on(async move {
-            loop {
-                if let Some(w) = rx.borrow_and_update().clone() {
-                    if w.version >= min_version {
-                        return Ok(w);
-                    }
-                }
-                if let Some(e) = closed.borrow().clone() {
-                    return Err(e);
-                }
-                tokio::select! {
-                    r = rx.changed() => if r.is_err() {
-                        return Err(LinkError::Closed("weights stream ended".into()));
-                    },
-                    _ = closed.changed() => {}
-                }
-            }
-        })
+        self.wait_weights(min_version, None)
+    }
+
+    fn weights_within(
+        &mut self,
+        min_version: u64,
+        wait: Duration,
+    ) -> Result<Arc<PolicyWeights>, LinkError> {
+        self.wait_weights(min_version, Some(wait))
     }
 
     fn push(&mut self, rollout: Rollout) -> Result<(), LinkError> {

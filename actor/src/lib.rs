@@ -208,8 +208,14 @@ pub fn run_actor_from(
     }
     let mut summary = ActorSummary::default();
     let mut want = 0u64;
+    let mut pace = Pace::default();
     while !stop.load(Ordering::Relaxed) {
-        let weights = match link.weights(want) {
+        let got = match assignment.config.mode {
+            Mode::Sync => link.weights(want),
+            Mode::Async if summary.rollouts == 0 => link.weights(0),
+            Mode::Async => link.weights_within(want, pace.wait()),
+        };
+        let weights = match got {
             Ok(w) => w,
             Err(LinkError::Finished(_)) => break,
             Err(LinkError::Closed(why)) => {
@@ -221,6 +227,7 @@ pub fn run_actor_from(
         if summary.rollouts == 0 {
             summary.first_version = weights.version;
         }
+        pace.saw(weights.version);
         let mut policy = Policy::new(weights, layout, assignment.config.head)?;
         let rollout = actor.collect(&mut policy);
         summary.steps += (rollout.n_envs * rollout.n_steps) as u64;
@@ -234,10 +241,46 @@ pub fn run_actor_from(
             }
             Err(e) => return Err(e.into()),
         }
-        want = match assignment.config.mode {
-            Mode::Sync => policy.version() + 1,
-            Mode::Async => policy.version(),
-        };
+        want = policy.version() + 1;
     }
     Ok(summary)
+}
+
+/// Async mode: how long an actor waits for a newer version before it acts again with
+/// the one it has: about two of the learner's update intervals as the actor sees
+/// them, so that a fast learner gets about one rollout per actor and version (not a
+/// flood of rollouts that go stale in the queue) and a slow one is not waited for.
+struct Pace {
+    /// Smoothed seconds between versions.
+    interval: f64,
+    /// Last version seen, and when it first arrived.
+    last: Option<(u64, std::time::Instant)>,
+}
+
+impl Default for Pace {
+    fn default() -> Self {
+        Self {
+            interval: 0.01,
+            last: None,
+        }
+    }
+}
+
+impl Pace {
+    fn saw(&mut self, version: u64) {
+        let now = std::time::Instant::now();
+        match self.last {
+            Some((v, at)) if version > v => {
+                let per = now.duration_since(at).as_secs_f64() / (version - v) as f64;
+                self.interval = 0.8 * self.interval + 0.2 * per;
+                self.last = Some((version, now));
+            }
+            Some(_) => {}
+            None => self.last = Some((version, now)),
+        }
+    }
+
+    fn wait(&self) -> std::time::Duration {
+        std::time::Duration::from_secs_f64((2.0 * self.interval).clamp(0.002, 0.5))
+    }
 }

@@ -6,6 +6,7 @@ use crate::config::RunConfig;
 use crate::rollout::Rollout;
 use saver_proto::NamedTensor;
 use std::sync::Arc;
+use std::time::Duration;
 
 /// What an actor says about itself when it registers.
 #[derive(Clone, Debug)]
@@ -72,6 +73,13 @@ pub trait LearnerLink: Send {
     fn register(&mut self, reg: &Registration) -> Result<Assignment, LinkError>;
     /// Blocks until weights of at least `min_version` exist; returns the newest.
     fn weights(&mut self, min_version: u64) -> Result<Arc<PolicyWeights>, LinkError>;
+    /// Waits at most `wait` for weights of at least `min_version`, then returns the
+    /// newest there are (async actors pace themselves with it).
+    fn weights_within(
+        &mut self,
+        min_version: u64,
+        wait: Duration,
+    ) -> Result<Arc<PolicyWeights>, LinkError>;
     /// Hands a rollout to the learner.
     fn push(&mut self, rollout: Rollout) -> Result<(), LinkError>;
 }

@@ -214,12 +214,15 @@ impl Hub {
     /// fall back to the blocking [`Hub::submit`] when the trainer is behind.
     pub fn try_submit(&self, rollout: Rollout) -> Result<Option<Rollout>, LinkError> {
         if let Err(e) = self.check(&rollout) {
-            self.stats.rejected.fetch_add(1, Ordering::Relaxed);
-            tracing::warn!(
-                actor = rollout.actor_id,
-                seq = rollout.seq,
-                "rollout refused: {e}"
-            );
+            // A closed learner is not a refusal of the rollout: not counted or logged.
+            if !matches!(e, LinkError::Closed(_) | LinkError::Finished(_)) {
+                self.stats.rejected.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    actor = rollout.actor_id,
+                    seq = rollout.seq,
+                    "rollout refused: {e}"
+                );
+            }
             return Err(e);
         }
         let (id, seq) = (rollout.actor_id, rollout.seq);
@@ -314,6 +317,33 @@ impl Hub {
                 return Err(why.clone());
             }
             s = self.changed.wait(s).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Like [`Hub::wait_weights`], but waits at most `wait`; then returns the newest.
+    pub fn wait_weights_for(
+        &self,
+        min_version: u64,
+        wait: Duration,
+    ) -> Result<Arc<PolicyWeights>, LinkError> {
+        let deadline = std::time::Instant::now() + wait;
+        let mut s = self.lock();
+        loop {
+            if s.weights.version >= min_version {
+                return Ok(s.weights.clone());
+            }
+            if let Some(why) = &s.closed {
+                return Err(why.clone());
+            }
+            let now = std::time::Instant::now();
+            if now >= deadline {
+                return Ok(s.weights.clone());
+            }
+            s = self
+                .changed
+                .wait_timeout(s, deadline - now)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
         }
     }
 

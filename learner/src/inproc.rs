@@ -4,6 +4,7 @@ use crate::Hub;
 use saver_core::link::{Assignment, LearnerLink, LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
 use std::sync::Arc;
+use std::time::Duration;
 
 /// A [`LearnerLink`] straight to a [`Hub`].
 #[derive(Clone)]
@@ -26,6 +27,14 @@ impl LearnerLink for InProcessLink {
 
     fn weights(&mut self, min_version: u64) -> Result<Arc<PolicyWeights>, LinkError> {
         self.hub.wait_weights(min_version)
+    }
+
+    fn weights_within(
+        &mut self,
+        min_version: u64,
+        wait: Duration,
+    ) -> Result<Arc<PolicyWeights>, LinkError> {
+        self.hub.wait_weights_for(min_version, wait)
     }
 
     fn push(&mut self, rollout: Rollout) -> Result<(), LinkError> {

@@ -195,8 +195,8 @@ pub fn endpoint(url: &str) -> Result<Endpoint, tonic::transport::Error> {
 pub fn server() -> tonic::transport::Server {
     tonic::transport::Server::builder()
         .tcp_nodelay(true)
-        .initial_stream_window_size(Some(4 << 20))
-        .initial_connection_window_size(Some(8 << 20))
+        .initial_stream_window_size(Some(64 << 10))
+        .initial_connection_window_size(Some(1 << 20))
         .http2_keepalive_interval(Some(KEEPALIVE_INTERVAL))
         .http2_keepalive_timeout(Some(KEEPALIVE_TIMEOUT))
 }
