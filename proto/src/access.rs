@@ -189,9 +189,12 @@ pub fn endpoint(url: &str) -> Result<Endpoint, tonic::transport::Error> {
         .keep_alive_while_idle(true))
 }
 
-/// The transport settings every SAVER server uses (see [`Access::server`] for TLS): no Nagle delay, HTTP/2 windows
-/// that hold a whole weights message, keepalive pings (a peer behind a cut link is
-/// dropped, so its streams end and a sync round stops waiting for it).
+/// The transport settings every SAVER server uses (see [`Access::server`] for TLS): no
+/// Nagle delay; small receive windows (64 KiB per stream, 1 MiB per connection), so an
+/// actor cannot park thousands of rollouts in flight that are stale when they arrive
+/// (the clients' windows, which carry weights the other way, are large); keepalive
+/// pings (a peer behind a cut link is dropped, so its streams end and a sync round
+/// stops waiting for it).
 pub fn server() -> tonic::transport::Server {
     tonic::transport::Server::builder()
         .tcp_nodelay(true)
