@@ -1,6 +1,6 @@
-//! The distributed roles of the one `saver` binary: `learner`, `actor`,
-//! `pcpn-trainer`, and the clients `weights` and `healthcheck`. They run the same
-//! learner and actor code as `saver train`, with gRPC between them.
+//! The distributed roles of the one `saver` binary: `learner`, `actor` and
+//! `pcpn-trainer` (the small clients are in `clients.rs`). They run the same learner
+//! and actor code as `saver train`, with gRPC between them.
 
 use crate::access::{client_tls, ClientArgs, ServerAccess};
 use crate::config::RunArgs;
@@ -11,8 +11,7 @@ use clap::Args;
 use saver_actor::grpc::GrpcLink;
 use saver_actor::{run_actor, ActorError, ActorSummary};
 use saver_core::config::Algo;
-use saver_core::link::LinkError;
-use saver_core::link::Registration;
+use saver_core::link::{LinkError, Registration};
 use saver_learner::grpc::{LearnerService, TrainerStatus};
 use saver_pcpn_trainer::service::{fetch, PcpnService};
 use saver_pcpn_trainer::{load_pcpn_bytes, PcpnStore};
@@ -132,7 +131,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     let learner = start_learner(&config, &out, pcpn, stop.clone(), args.checkpoint_every)?;
     learner
         .hub
-        .set_round_timeout(std::time::Duration::from_secs_f64(args.round_timeout));
+        .set_round_timeout(Duration::from_secs_f64(args.round_timeout));
     let (service, status) = LearnerService::new(learner.hub.clone());
     let service = service.with_access(check);
     let listener = rt.block_on(bind(args.listen))?;
