@@ -19,9 +19,36 @@ pub fn cosine_embedding_into(tau: f32, out: &mut [f32]) {
 }
 
 /// The embedding of every τ: [taus.len(), width], row-major.
+///
+/// The same recurrence as [`cosine_embedding_into`], run for `LANES` values of τ side
+/// by side: one τ's recurrence is a chain of dependent multiply-adds, so eight
+/// independent chains keep the FPU busy and vectorise, with bit-identical results
+/// (it was 16 % of a SAVER update at d = 4 in a perf profile as a single chain).
 pub fn cosine_embedding(taus: &[f32], width: usize) -> Vec<f32> {
+    const LANES: usize = 8;
     let mut out = vec![0.0f32; taus.len() * width];
-    for (row, &tau) in out.chunks_exact_mut(width).zip(taus) {
+    let mut rows = out.chunks_exact_mut(width * LANES);
+    let mut groups = taus.chunks_exact(LANES);
+    for (block, group) in (&mut rows).zip(&mut groups) {
+        let mut c1 = [0.0f64; LANES];
+        for (c, &tau) in c1.iter_mut().zip(group) {
+            *c = (std::f64::consts::PI * tau as f64).cos();
+        }
+        let (mut prev, mut cur) = ([1.0f64; LANES], c1);
+        for i in 0..width {
+            for l in 0..LANES {
+                block[l * width + i] = cur[l] as f32;
+                let next = 2.0 * c1[l] * cur[l] - prev[l];
+                prev[l] = cur[l];
+                cur[l] = next;
+            }
+        }
+    }
+    for (row, &tau) in rows
+        .into_remainder()
+        .chunks_exact_mut(width)
+        .zip(groups.remainder())
+    {
         cosine_embedding_into(tau, row);
     }
     out
@@ -43,6 +70,14 @@ mod tests {
         // τ = 0 gives all ones; τ = 1 alternates −1, +1 (cos(iπ) = (−1)^i).
         assert!(cosine_embedding(&[0.0], 4).iter().all(|&x| x == 1.0));
         assert_eq!(cosine_embedding(&[1.0], 4), vec![-1.0, 1.0, -1.0, 1.0]);
+        // The eight-lane path equals the one-τ recurrence bit for bit (19 τ: two
+        // blocks of eight and a remainder of three).
+        let taus: Vec<f32> = (0..19).map(|i| i as f32 / 19.0).collect();
+        let mut one = vec![0.0f32; 19 * 128];
+        for (row, &t) in one.chunks_exact_mut(128).zip(&taus) {
+            cosine_embedding_into(t, row);
+        }
+        assert_eq!(cosine_embedding(&taus, 128), one);
     }
 
     #[test]
