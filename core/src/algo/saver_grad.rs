@@ -116,6 +116,8 @@ fn loss_grad(
     let qn = 1.0 / (b * k * d) as f64;
     let mn = cfg.lambda_mon * 2.0 * k as f64 / (b * k * k * d) as f64;
     let (mut la, mut lm) = (0.0f64, 0.0f64);
+    let mnf = mn as f32;
+    let mut order: Vec<usize> = Vec::with_capacity(k);
     for j in 0..d {
         for bi in 0..b {
             let row = (j * b + bi) * k;
@@ -141,22 +143,28 @@ fn loss_grad(
                 gs[i] += (-(drho * adv) as f64 * qn) as f32;
             }
             if cfg.lambda_mon != 0.0 {
-                for i in 0..k {
-                    for kk in 0..k {
-                        let v = qs[i] - qs[kk];
-                        if ts[i] < ts[kk] && v > 0.0 {
-                            let (l, g) = if v <= 1.0 {
-                                (0.5 * v * v, v)
-                            } else {
-                                (v - 0.5, 1.0)
-                            };
-                            lm += l as f64;
-                            let g = (g as f64 * mn) as f32;
-                            gs[i] += g;
-                            gs[kk] -= g;
-                        }
+                // Pairs in ascending τ, each once, without branches: with c = clamp(v, 0,
+                // 1) for v = q_a − q_b, Huber_1(relu(v)) = c·(v − c/2) and its slope is c
+                // (c = 0 also when the τ are equal, which the strict < excludes).
+                order.clear();
+                order.extend(0..k);
+                order.sort_unstable_by(|&x, &y| ts[x].total_cmp(&ts[y]));
+                let mut row_loss = 0.0f32;
+                for a in 0..k {
+                    let ia = order[a];
+                    let (qa, ta) = (qs[ia], ts[ia]);
+                    let mut ga = 0.0f32;
+                    for &ib in &order[a + 1..] {
+                        let v = qa - qs[ib];
+                        let c = v.clamp(0.0, 1.0) * f32::from(u8::from(ta < ts[ib]));
+                        row_loss += c * (v - 0.5 * c);
+                        let g = c * mnf;
+                        ga += g;
+                        gs[ib] -= g;
                     }
+                    gs[ia] += ga;
                 }
+                lm += row_loss as f64;
             }
         }
     }
