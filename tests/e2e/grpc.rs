@@ -175,19 +175,48 @@ fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
 
 #[test]
 fn async_mode_drops_rollouts_older_than_max_lag() {
-    // Async with max_lag 0: actors keep acting on the weights they hold while the
-    // learner moves on, so some rollouts arrive a version late and are dropped.
+    // Async, 2 rollouts per update, max_lag 0: two actors train; a third acts on
+    // version 0 and hands its rollout in only once the learner is at version 2. It must
+    // be dropped as stale, and no update may use a rollout older than max_lag.
     let mut config = RunConfig::paper(
         EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::A2c,
-        40 * 4 * 8,
+        400 * 2 * 8,
     );
-    config.actors = 4;
+    config.actors = 2;
     config.mode = saver_core::config::Mode::Async;
     config.max_lag = 0;
     let dir = temp_dir("async");
-    let o = train_with(&config, &dir, None, Arc::new(AtomicBool::new(false)), false).unwrap();
-    assert!(o.stale_dropped > 0, "no rollout was stale");
+    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
+    let hub = learner.hub.clone();
+    let mut slow = saver_learner::InProcessLink::new(hub.clone());
+    let reg = |i: u64| Registration {
+        name: format!("a{i}"),
+        session: i,
+        n_envs: 1,
+    };
+    let assignment = slow.register(&reg(9)).unwrap();
+    let v0 = slow.weights(0).unwrap();
+    assert_eq!(v0.version, 0);
+    let mut policy = saver_core::nets::Policy::new(v0, config.env.layout(), config.head).unwrap();
+    let old = saver_actor::Actor::new(&assignment, 9, 1).collect(&mut policy);
+    let actors: Vec<_> = (0..2)
+        .map(|i| {
+            let mut link = saver_learner::InProcessLink::new(hub.clone());
+            let r = reg(i);
+            std::thread::spawn(move || run_actor(&mut link, &r, &AtomicBool::new(false)).unwrap())
+        })
+        .collect();
+    hub.wait_weights(2).unwrap();
+    slow.push(old).expect("the learner is still training");
+    let (_, o) = follow(learner, &config, false, |_| {}).unwrap();
+    for a in actors {
+        a.join().unwrap();
+    }
+    assert!(
+        o.stale_dropped >= 1,
+        "the version-0 rollout was not dropped"
+    );
     let csv = std::fs::read_to_string(&o.metrics).unwrap();
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
     let col = header.iter().position(|h| *h == "lag_max").unwrap();
