@@ -22,7 +22,11 @@ pids=()
 cleanup() {
   status=$?
   for pid in "${pids[@]}"; do kill -9 "$pid" 2>/dev/null || true; done
-  for h in a b c; do ip netns del "${p}$h" 2>/dev/null || true; done
+  # Whatever still runs inside the hosts goes too, then the hosts.
+  for h in a b c; do
+    ip netns pids "${p}$h" 2>/dev/null | xargs -r kill -9 2>/dev/null || true
+    ip netns del "${p}$h" 2>/dev/null || true
+  done
   if [ "$status" != 0 ]; then
     echo "--- multi-host test FAILED; learner log tail:" >&2
     tail -n 30 "$tmp/learner.log" >&2 || true
@@ -67,7 +71,7 @@ wait_for() {
 actors_are() { [ "$(field actors)" = "$1" ]; }
 version_at_least() { local v; v=$(field version); [ -n "$v" ] && [ "$v" -ge "$1" ]; }
 
-in_a "$bin" learner --listen 0.0.0.0:50051 --token "$token" --algo a2c --env angle --dim 4 \
+ip netns exec "${p}a" "$bin" learner --listen 0.0.0.0:50051 --token "$token" --algo a2c --env angle --dim 4 \
   --steps 1000000000 --actors 16 --out "$tmp/run" >"$tmp/learner.log" 2>&1 &
 pids+=($!)
 disown
