@@ -308,16 +308,7 @@ impl Hub {
 
     /// Blocks until weights of at least `min_version` exist; returns the newest.
     pub fn wait_weights(&self, min_version: u64) -> Result<Arc<PolicyWeights>, LinkError> {
-        let mut s = self.lock();
-        loop {
-            if s.weights.version >= min_version {
-                return Ok(s.weights.clone());
-            }
-            if let Some(why) = &s.closed {
-                return Err(why.clone());
-            }
-            s = self.changed.wait(s).unwrap_or_else(|e| e.into_inner());
-        }
+        self.wait_weights_until(min_version, None)
     }
 
     /// Like [`Hub::wait_weights`], but waits at most `wait`; then returns the newest.
@@ -326,7 +317,14 @@ impl Hub {
         min_version: u64,
         wait: Duration,
     ) -> Result<Arc<PolicyWeights>, LinkError> {
-        let deadline = std::time::Instant::now() + wait;
+        self.wait_weights_until(min_version, Some(std::time::Instant::now() + wait))
+    }
+
+    fn wait_weights_until(
+        &self,
+        min_version: u64,
+        deadline: Option<std::time::Instant>,
+    ) -> Result<Arc<PolicyWeights>, LinkError> {
         let mut s = self.lock();
         loop {
             if s.weights.version >= min_version {
@@ -335,15 +333,19 @@ impl Hub {
             if let Some(why) = &s.closed {
                 return Err(why.clone());
             }
-            let now = std::time::Instant::now();
-            if now >= deadline {
-                return Ok(s.weights.clone());
-            }
-            s = self
-                .changed
-                .wait_timeout(s, deadline - now)
-                .unwrap_or_else(|e| e.into_inner())
-                .0;
+            s = match deadline {
+                None => self.changed.wait(s).unwrap_or_else(|e| e.into_inner()),
+                Some(d) => {
+                    let now = std::time::Instant::now();
+                    if now >= d {
+                        return Ok(s.weights.clone());
+                    }
+                    self.changed
+                        .wait_timeout(s, d - now)
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0
+                }
+            };
         }
     }
 
