@@ -8,7 +8,6 @@ use saver_actor::run_actor;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
 use saver_core::link::{LearnerLink, LinkError, Registration};
-use saver_learner::grpc::{serve, LearnerService};
 use saver_learner::InProcessLink;
 use saver_proto::pb::learner_client::LearnerClient;
 use saver_proto::{pb, Access, AddToken, CheckToken, ClientAccess};
@@ -29,13 +28,8 @@ fn every_learner_call_needs_the_token() {
     let dir = temp_dir("token");
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
-    let (service, _status) = LearnerService::new(learner.hub.clone());
-    let service = service.with_access(Access::token(CheckToken::new(Some("tok-1")).unwrap()));
-    let listener = rt
-        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
-        .unwrap();
-    let url = format!("http://{}", listener.local_addr().unwrap());
-    rt.spawn(serve(service, listener, std::future::pending()));
+    let access = Access::token(CheckToken::new(Some("tok-1")).unwrap());
+    let url = crate::serve_learner(&rt, learner.hub.clone(), access);
 
     let status_with = |token: Option<&str>| {
         rt.block_on(async {

@@ -120,12 +120,7 @@ fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
-    let (service, _status) = LearnerService::new(hub.clone());
-    let listener = rt
-        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
-        .unwrap();
-    let url = format!("http://{}", listener.local_addr().unwrap());
-    rt.spawn(serve(service, listener, std::future::pending()));
+    let url = crate::serve_learner(&rt, hub.clone(), Default::default());
     let spawn_actor = |i: u64| {
         let url = url.clone();
         std::thread::spawn(move || {

@@ -11,7 +11,6 @@ use saver_core::env::{EnvKind, EnvSpec};
 use saver_core::link::Assignment;
 use saver_core::nets::Policy;
 use saver_core::rng::rng_for;
-use saver_learner::grpc::{serve, LearnerService};
 use saver_proto::pb::learner_client::LearnerClient;
 use saver_proto::{pb, ACTOR_ID_KEY, SESSION_KEY};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -141,12 +140,7 @@ fn a_hundred_thousand_hostile_rollouts_are_refused_and_change_nothing() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
-    let (service, _status) = LearnerService::new(hub.clone());
-    let listener = rt
-        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
-        .unwrap();
-    let url = format!("http://{}", listener.local_addr().unwrap());
-    rt.spawn(serve(service, listener, std::future::pending()));
+    let url = crate::serve_learner(&rt, hub.clone(), Default::default());
 
     let (refused, weights_after_one) = rt.block_on(async {
         let mut client = LearnerClient::connect(url.clone())
