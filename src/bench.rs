@@ -10,7 +10,7 @@ use crate::train::train_with;
 use anyhow::Result;
 use candle_core::{Device, Tensor};
 use clap::Args;
-use saver_core::algo::{build, Algorithm};
+use saver_core::algo::{build, pcpn_threads, set_pcpn_threads, Algorithm};
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvLayout, EnvSpec};
 use saver_core::nets::{ParamSet, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
@@ -29,7 +29,8 @@ pub struct BenchArgs {
     /// Seconds to spend timing each update kind.
     #[arg(long, default_value_t = 2.0)]
     pub seconds: f64,
-    /// Threads for the updates (default: candle's, one per physical core).
+    /// Threads for SAVER's PCPN blocks in the whole-machine rows (default: one per
+    /// core). The share-of-peak table always runs them on one thread.
     #[arg(long)]
     pub threads: Option<usize>,
     /// Updates in each rollout-plus-update cycle measurement.
@@ -38,15 +39,6 @@ pub struct BenchArgs {
     /// Skip the gRPC service measurements.
     #[arg(long)]
     pub no_services: bool,
-}
-
-/// Sets candle's CPU thread count (read at every matmul). Called before other threads
-/// of the bench start.
-fn set_threads(n: Option<usize>) {
-    match n {
-        Some(n) => std::env::set_var("RAYON_NUM_THREADS", n.to_string()),
-        None => std::env::set_var("RAYON_NUM_THREADS", "1"),
-    }
 }
 
 /// Calls `f` repeatedly for about `seconds` (after one warm-up call); mean seconds per call.
@@ -133,52 +125,84 @@ pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
     })?)
 }
 
+/// Seconds per update of `algo` on angle d (a synthetic batch, a random PCPN), with
+/// the update's FLOPs and transitions.
+fn time_update(algo: Algo, d: usize, seconds: f64) -> Result<(f64, f64, usize)> {
+    let dev = Device::Cpu;
+    let spec = EnvSpec::new(EnvKind::Angle, d)?;
+    let config = RunConfig::recommended(spec, algo, 1);
+    let pcpn = (algo == Algo::Saver)
+        .then(|| random_pcpn(&spec, &dev))
+        .transpose()?;
+    let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
+    let batch = synthetic_batch(&spec.layout(), d as u64);
+    let s = time(seconds, || {
+        a.update(&batch)?;
+        Ok(())
+    })?;
+    let flops = update_flops(
+        algo,
+        &spec.layout(),
+        batch.len(),
+        batch.n_traj,
+        config.saver.quantiles,
+    );
+    Ok((s, flops, batch.len()))
+}
+
 /// Runs `saver bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
-    set_threads(Some(1));
+    // candle runs on RAYON_NUM_THREADS (1 unless set: see `init_process`).
     let peak = matmul_peak(args.seconds)?;
-    set_threads(args.threads);
-    let threads = candle_core::utils::get_num_threads();
     println!(
-        "single-core matmul (1024^3, candle): {peak:.1} GFLOP/s; updates use {threads} thread(s)\n"
+        "single-core matmul (1024^3, candle): {peak:.1} GFLOP/s; candle uses {} thread(s)\n",
+        candle_core::utils::get_num_threads()
     );
+    println!("updates on one core (B = 128, K = 32; SAVER's PCPN blocks on 1 thread):");
     println!(
         "{:<6} {:>3} {:>12} {:>14} {:>10} {:>12}",
         "algo", "d", "ms/update", "steps/s", "GFLOP/s", "of peak"
     );
-    let dev = Device::Cpu;
+    set_pcpn_threads(1);
+    let mut single = Vec::new();
     for algo in [Algo::A2c, Algo::Saver] {
         for &d in &args.dims {
-            let spec = EnvSpec::new(EnvKind::Angle, d)?;
-            let config = RunConfig::recommended(spec, algo, 1);
-            let pcpn = (algo == Algo::Saver)
-                .then(|| random_pcpn(&spec, &dev))
-                .transpose()?;
-            let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
-            let batch = synthetic_batch(&spec.layout(), d as u64);
-            let s = time(args.seconds, || {
-                a.update(&batch)?;
-                Ok(())
-            })?;
-            let flops = update_flops(
-                algo,
-                &spec.layout(),
-                batch.len(),
-                batch.n_traj,
-                config.saver.quantiles,
-            );
+            let (s, flops, n) = time_update(algo, d, args.seconds)?;
+            if algo == Algo::Saver {
+                single.push(s);
+            }
             let gflops = flops / s / 1e9;
             println!(
                 "{:<6} {d:>3} {:>12.2} {:>14.0} {:>10.2} {:>11.1}%",
                 algo.name(),
                 s * 1e3,
-                batch.len() as f64 / s,
+                n as f64 / s,
                 gflops,
                 100.0 * gflops / peak
             );
         }
     }
+    set_pcpn_threads(args.threads.unwrap_or(0));
+    let threads = pcpn_threads();
+    if threads > 1 {
+        println!("\nSAVER with its PCPN blocks on {threads} threads (the default: one per core):");
+        println!(
+            "{:<6} {:>3} {:>12} {:>14} {:>14}",
+            "algo", "d", "ms/update", "steps/s", "vs 1 thread"
+        );
+        for (&d, one) in args.dims.iter().zip(single) {
+            let (s, _, n) = time_update(Algo::Saver, d, args.seconds)?;
+            println!(
+                "{:<6} {d:>3} {:>12.2} {:>14.0} {:>13.2}x",
+                "saver",
+                s * 1e3,
+                n as f64 / s,
+                one / s
+            );
+        }
+    }
     println!("\nrollout + update cycle (16 actors x 8 steps, in-process, angle):");
+    let dev = Device::Cpu;
     let out = std::env::temp_dir().join(format!("saver-bench-{}", std::process::id()));
     for (algo, d) in [(Algo::A2c, 4), (Algo::Saver, 4)] {
         let spec = EnvSpec::new(EnvKind::Angle, d)?;
@@ -213,20 +237,26 @@ pub fn run(args: BenchArgs) -> Result<()> {
 
 fn services(args: &BenchArgs) -> Result<()> {
     use crate::bench_services::{broadcast_latency, ingress, processes_vs_embedded};
-    println!("\nservices (gRPC over loopback, A2C angle d=4):");
-    let (emb, procs) = processes_vs_embedded(4 * args.cycle_updates)?;
-    println!(
-        "  16 actor processes vs embedded: {procs:.0} vs {emb:.0} env steps/s = {:.2} (goal >= 0.8)",
-        procs / emb
-    );
+    println!("\nservices (gRPC over loopback, angle d=4, sync mode):");
+    for (algo, updates) in [
+        (Algo::A2c, 4 * args.cycle_updates),
+        (Algo::Saver, args.cycle_updates),
+    ] {
+        let (emb, procs) = processes_vs_embedded(algo, updates)?;
+        println!(
+            "  {}: 16 actor processes vs embedded: {procs:.0} vs {emb:.0} env steps/s = {:.2} (goal >= 0.8)",
+            algo.name(),
+            procs / emb
+        );
+    }
     let rate = ingress(args.seconds.max(2.0))?;
     println!(
-        "  learner ingress, no updates: {rate:.0} transitions/s = {:.2} of the 200k goal",
+        "  learner ingress, no updates (A2C rollouts): {rate:.0} transitions/s = {:.2} of the 200k goal",
         rate / 200_000.0
     );
     let (p50, p99) = broadcast_latency(100)?;
     println!(
-        "  weight broadcast to 16 subscribers: p50 {p50:.2} ms, p99 {p99:.2} ms (goal p99 < 20 ms)"
+        "  weight broadcast to 16 subscribers (A2C agent): p50 {p50:.2} ms, p99 {p99:.2} ms (goal p99 < 20 ms)"
     );
     Ok(())
 }

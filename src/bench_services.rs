@@ -35,15 +35,26 @@ fn serve_hub(rt: &tokio::runtime::Runtime, hub: Arc<Hub>) -> Result<String> {
     Ok(url)
 }
 
-/// Env steps/s of the embedded run and of the same run with 16 actor processes.
-pub fn processes_vs_embedded(updates: u64) -> Result<(f64, f64)> {
-    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 4)?, Algo::A2c, 0);
+/// Env steps/s of the embedded run and of the same run with 16 actor processes (angle
+/// d = 4, sync mode; SAVER with a random PCPN).
+pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64)> {
+    let spec = EnvSpec::new(EnvKind::Angle, 4)?;
+    let mut config = RunConfig::recommended(spec, algo, 0);
     config.steps = updates * config.batch_transitions();
-    let dir = std::env::temp_dir().join(format!("saver-bench-svc-{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!(
+        "saver-bench-svc-{}-{}",
+        algo.name(),
+        std::process::id()
+    ));
+    let pcpn = || {
+        (algo == Algo::Saver)
+            .then(|| crate::bench::random_pcpn(&spec, &candle_core::Device::Cpu))
+            .transpose()
+    };
     let stop = Arc::new(AtomicBool::new(false));
-    let emb = train_with(&config, &dir.join("embedded"), None, stop.clone(), false)?;
+    let emb = train_with(&config, &dir.join("embedded"), pcpn()?, stop.clone(), false)?;
     let rt = runtime()?;
-    let learner = start_learner(&config, &dir.join("grpc"), None, stop, 0)?;
+    let learner = start_learner(&config, &dir.join("grpc"), pcpn()?, stop, 0)?;
     let url = serve_hub(&rt, learner.hub.clone())?;
     let exe = std::env::current_exe().context("finding the saver binary")?;
     let mut actors = Vec::new();

@@ -24,7 +24,15 @@ pub mod train;
 ///   pinned here. The default is 1 thread: on the 2-core reference machine the A2C
 ///   angle-d2 run does 47k steps/s with 1 thread against 38k with 2 (the actors need
 ///   the other core).
+/// - SAVER's fused PCPN blocks have their own thread count, one per core unless
+///   SAVER_PCPN_THREADS says otherwise (see `saver_core::algo::set_pcpn_threads`).
 pub fn init_process(threads: Option<usize>) {
+    if let Some(n) = std::env::var("SAVER_PCPN_THREADS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+    {
+        saver_core::algo::set_pcpn_threads(n);
+    }
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets allocator parameters; it is called before other threads.
     unsafe {

@@ -61,8 +61,7 @@ impl GrpcLink {
 
     /// Connects to `url` with `access`'s token (on every call) and TLS settings.
     pub fn connect_with(url: &str, access: &ClientAccess) -> Result<Self, LinkError> {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
+        let rt = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
             .map_err(|e| LinkError::Closed(format!("starting the link runtime: {e}")))?;

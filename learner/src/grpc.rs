@@ -363,9 +363,6 @@ pub async fn serve(
         .server()?
         .add_service(health_service)
         .add_service(service.into_server())
-        .serve_with_incoming_shutdown(
-            tokio_stream::wrappers::TcpListenerStream::new(listener),
-            shutdown,
-        )
+        .serve_with_incoming_shutdown(saver_proto::incoming(listener), shutdown)
         .await
 }

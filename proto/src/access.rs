@@ -189,8 +189,18 @@ pub fn endpoint(url: &str) -> Result<Endpoint, tonic::transport::Error> {
         .keep_alive_while_idle(true))
 }
 
+/// The connections a server accepts on `listener`, with Nagle's algorithm off.
+///
+/// `Server::tcp_nodelay` applies only to addresses the server binds itself; a server fed
+/// a listener (every SAVER server: they bind first, to report the port) must set it per
+/// accepted socket, here. Without it a pushed weights message waited for the actor's
+/// delayed ACK: 16 sync actor processes ran ~38 ms rounds on loopback.
+pub fn incoming(listener: tokio::net::TcpListener) -> tonic::transport::server::TcpIncoming {
+    tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true))
+}
+
 /// The transport settings every SAVER server uses (see [`Access::server`] for TLS): no
-/// Nagle delay; small receive windows (64 KiB per stream, 1 MiB per connection), so an
+/// Nagle delay (for a listener of its own: see [`incoming`]); small receive windows (64 KiB per stream, 1 MiB per connection), so an
 /// actor cannot park thousands of rollouts in flight that are stale when they arrive
 /// (the clients' windows, which carry weights the other way, are large); keepalive
 /// pings (a peer behind a cut link is dropped, so its streams end and a sync round

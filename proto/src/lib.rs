@@ -4,7 +4,7 @@
 //! them with the safetensors package alone.
 
 pub mod access;
-pub use access::{endpoint, server, Access, AddToken, CheckToken, ClientAccess};
+pub use access::{endpoint, incoming, server, Access, AddToken, CheckToken, ClientAccess};
 
 /// Generated gRPC messages, clients and servers (package `saver.v1`).
 #[allow(missing_docs, clippy::all)]

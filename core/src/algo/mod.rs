@@ -2,11 +2,12 @@
 //! weight publishing do not care which one runs (and a third, standalone QRRL, fits).
 
 mod a2c;
-mod kernels;
+mod fused;
 mod saver;
 mod saver_grad;
 
 pub use a2c::A2c;
+pub use fused::{pcpn_threads, set_pcpn_threads};
 pub use saver::{saver_actor_losses, tau_tensors, GradPath, Saver, SaverLosses};
 pub use saver_grad::{policy_grads, InputGrad, PcpnGrad};
 

@@ -57,9 +57,10 @@ pub struct Saver {
 /// How the agent's gradient through the PCPN is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GradPath {
-    /// Hand-written forward and input-gradient of the frozen PCPN (the default).
+    /// Hand-written forward and input-gradient of the frozen PCPN (the default on the CPU).
     Fast,
-    /// candle autograd through the whole graph (the reference the fast path is tested against).
+    /// candle autograd through the whole graph (the reference the fast path is tested
+    /// against; the default on other devices).
     Reference,
 }
 
@@ -128,7 +129,13 @@ impl Saver {
             agent,
             critic,
             pcpn: PcpnGrad::new(pcpn)?,
-            path: GradPath::Fast,
+            // The fast path's fused blocks run on the host; on a GPU candle's graph
+            // keeps everything on the device.
+            path: if dev.is_cpu() {
+                GradPath::Fast
+            } else {
+                GradPath::Reference
+            },
             opt,
             rng: rng_for(config.seed, streams::LEARNER),
             layout,
@@ -194,7 +201,6 @@ impl Algorithm for Saver {
         let critic_loss = ((value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
 
         let taus = uniform01(&mut self.rng, d * b * k);
-        let (tau, cos) = tau_tensors(&taus, d, b, k, &self.dev)?;
         let mu = out.mu.narrow(0, 0, b)?;
         let log_std = out.log_std.narrow(0, 0, b)?;
         let obs = obs_all.narrow(0, 0, b)?;
@@ -204,14 +210,15 @@ impl Algorithm for Saver {
                 // carries them into the agent through autograd.
                 let x = Tensor::cat(&[&obs, &mu, &log_std], 1)?.detach();
                 let adv: Vec<f32> = advantage.flatten_all()?.to_vec1()?;
-                let g =
-                    self.pcpn
-                        .input_grad(&x, &batch.state_delta, &adv, &taus, &cos, &self.cfg)?;
+                let g = self
+                    .pcpn
+                    .input_grad(&x, &batch.state_delta, &adv, &taus, &self.cfg)?;
                 let (dmu, dls) = policy_grads(&g.dx, o, self.layout.mu_dim())?;
                 let surrogate = ((&mu * dmu)?.sum_all()? + (&log_std * dls)?.sum_all()?)?;
                 (g.actor_loss, g.mon_loss, surrogate)
             }
             GradPath::Reference => {
+                let (tau, cos) = tau_tensors(&taus, d, b, k, &self.dev)?;
                 let l = saver_actor_losses(
                     self.pcpn.pcpn(),
                     &obs,

@@ -259,18 +259,20 @@ fn a2c_update_is_finite_and_changes_the_agent() {
 
 /// The fast path's dL/dμ and dL/dlog σ equal candle autograd's through the reference
 /// graph, within 1e-5 of the gradient's scale, on random inputs at the real sizes
-/// (B = 128, K = 32) for every env layout, with the plain and the Huber quantile loss.
+/// (B = 128, K = 32) for every env layout, with the plain and the Huber quantile loss,
+/// and at B = 13 (one full block of 8 transitions and a partial one). The fused blocks
+/// give the same bits on 1 and 3 threads.
 #[test]
 fn fast_saver_gradient_equals_the_autograd_reference() {
     let cases = [
-        (EnvSpec::new(EnvKind::Angle, 4).unwrap(), None),
-        (EnvSpec::new(EnvKind::Select, 3).unwrap(), None),
-        (EnvSpec::new(EnvKind::Arm, 2).unwrap(), Some(0.01)),
-        (EnvSpec::new(EnvKind::Angle, 16).unwrap(), Some(0.01)),
+        (EnvSpec::new(EnvKind::Angle, 4).unwrap(), None, 128),
+        (EnvSpec::new(EnvKind::Select, 3).unwrap(), None, 13),
+        (EnvSpec::new(EnvKind::Arm, 2).unwrap(), Some(0.01), 128),
+        (EnvSpec::new(EnvKind::Angle, 16).unwrap(), Some(0.01), 128),
     ];
-    for (spec, kappa) in cases {
+    for (spec, kappa, b) in cases {
         let l = spec.layout();
-        let (b, k, d) = (128, 32, l.aligned_dim);
+        let (k, d) = (32, l.aligned_dim);
         let dev = Device::Cpu;
         let mut rng = rng_for(31, d as u64);
         let cfg = crate::config::SaverConfig {
@@ -325,9 +327,7 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
             1,
         )
         .unwrap();
-        let g = fast
-            .input_grad(&x, &delta, &adv, &taus, &cos, &cfg)
-            .unwrap();
+        let g = fast.input_grad(&x, &delta, &adv, &taus, &cfg).unwrap();
         let (dmu, dls) = policy_grads(&g.dx, l.obs_dim, l.mu_dim()).unwrap();
         let got: Vec<f32> = [flat(&dmu), flat(&dls)].concat();
 
