@@ -72,7 +72,7 @@ pub struct Fused {
 }
 
 /// The inputs that every block reads.
-pub struct Batch<'a> {
+pub struct Inputs<'a> {
     /// z = relu(h·W1 + b1) [B, d·128].
     pub z: &'a [f32],
     /// Δp [B, d].
@@ -98,7 +98,7 @@ struct Scratch {
 }
 
 /// Runs every (dimension, block) unit; see the module docs.
-pub fn run(heads: &Heads, x: &Batch, cfg: &SaverConfig) -> Fused {
+pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig) -> Fused {
     let units: Vec<(usize, usize)> = (0..x.d)
         .flat_map(|j| (0..x.b).step_by(BLOCK).map(move |b0| (j, b0)))
         .collect();
@@ -149,7 +149,7 @@ pub fn run(heads: &Heads, x: &Batch, cfg: &SaverConfig) -> Fused {
 /// reordered, so both give the same bits.
 fn unit(
     heads: &Heads,
-    x: &Batch,
+    x: &Inputs,
     cfg: &SaverConfig,
     j: usize,
     b0: usize,
@@ -167,7 +167,7 @@ fn unit(
 #[target_feature(enable = "avx2")]
 unsafe fn unit_avx2(
     heads: &Heads,
-    x: &Batch,
+    x: &Inputs,
     cfg: &SaverConfig,
     j: usize,
     b0: usize,
@@ -179,7 +179,7 @@ unsafe fn unit_avx2(
 #[inline(always)]
 fn unit_body(
     heads: &Heads,
-    x: &Batch,
+    x: &Inputs,
     cfg: &SaverConfig,
     j: usize,
     b0: usize,
@@ -258,7 +258,7 @@ fn unit_body(
 }
 
 /// 1/(B·K·d) for L_a and λ·2K/(B·K·K·d) for L_mon.
-pub fn norms(x: &Batch, cfg: &SaverConfig) -> (f64, f64) {
+pub fn norms(x: &Inputs, cfg: &SaverConfig) -> (f64, f64) {
     let (b, k, d) = (x.b as f64, x.k as f64, x.d as f64);
     (
         1.0 / (b * k * d),

@@ -81,7 +81,7 @@ impl PcpnGrad {
         let h = p.l0.forward(&x)?.relu()?; // [B, 256]
         let z = p.l1.forward(&h)?.relu()?; // [B, d·128]
         let zv = host(&z)?;
-        let batch = fused::Batch {
+        let batch = fused::Inputs {
             z: &zv,
             state_delta,
             advantage,
