@@ -99,6 +99,10 @@ pub struct RunArgs {
     /// SAVER: normalise the vector advantage per dimension over each batch.
     #[arg(long)]
     pub adv_norm: Option<bool>,
+    /// SAVER: with --adv-norm, one standard deviation over every dimension instead of
+    /// one per dimension.
+    #[arg(long)]
+    pub adv_norm_joint: Option<bool>,
     /// Clip each update's global gradient norm to this.
     #[arg(long)]
     pub grad_clip: Option<f64>,
@@ -132,6 +136,7 @@ struct FileConfig {
     log_std_min: Option<f64>,
     log_std_max: Option<f64>,
     adv_norm: Option<bool>,
+    adv_norm_joint: Option<bool>,
     grad_clip: Option<f64>,
 }
 
@@ -245,6 +250,9 @@ impl RunArgs {
         if let Some(v) = pick!(adv_norm) {
             c.saver.adv_norm = v;
         }
+        if let Some(v) = pick!(adv_norm_joint) {
+            c.saver.adv_norm_joint = v;
+        }
         if let Some(v) = pick!(grad_clip) {
             c.grad_clip = Some(v);
         }
@@ -295,6 +303,7 @@ pub fn to_toml(c: &RunConfig) -> String {
         s.push_str(&format!("log_std_min = {lo:?}\nlog_std_max = {hi:?}\n"));
     }
     s.push_str(&format!("adv_norm = {}\n", c.saver.adv_norm));
+    s.push_str(&format!("adv_norm_joint = {}\n", c.saver.adv_norm_joint));
     if let Some(g) = c.grad_clip {
         s.push_str(&format!("grad_clip = {g:?}\n"));
     }
@@ -318,6 +327,7 @@ mod tests {
             log_std_min: Some(-4.0),
             log_std_max: Some(0.0),
             adv_norm: Some(true),
+            adv_norm_joint: Some(true),
             grad_clip: Some(0.5),
             ..Default::default()
         };

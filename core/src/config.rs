@@ -83,6 +83,12 @@ pub struct SaverConfig {
     /// Normalise the vector advantage per dimension over the batch (zero mean, unit
     /// std); the paper does not.
     pub adv_norm: bool,
+    /// With `adv_norm`: divide by one standard deviation over every dimension (each
+    /// dimension still centred) instead of one per dimension, so a dimension whose
+    /// advantages are only noise (a coordinate already at the goal) stays small
+    /// rather than being scaled up to the size of the informative ones.
+    #[serde(default)]
+    pub adv_norm_joint: bool,
 }
 
 /// PCPN pretraining settings.
@@ -192,6 +198,7 @@ impl RunConfig {
                 lambda_mon: 1.0,
                 lambda_critic: 0.5,
                 adv_norm: false,
+                adv_norm_joint: false,
             },
             pretrain: PretrainConfig {
                 batches: paper_pretrain_batches(env.kind),

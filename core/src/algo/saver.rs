@@ -193,10 +193,16 @@ impl Algorithm for Saver {
         let returns = Tensor::from_vec(returns, (b, d), &self.dev)?;
         let mut advantage = (&returns - &value)?.detach();
         if self.cfg.adv_norm {
-            // Per dimension over the batch: zero mean, unit standard deviation.
+            // Per dimension over the batch: zero mean, unit standard deviation (one
+            // standard deviation over every dimension with `adv_norm_joint`).
             let centred = advantage.broadcast_sub(&advantage.mean_keepdim(0)?)?;
-            let std = (centred.sqr()?.mean_keepdim(0)? + 1e-8)?.sqrt()?;
-            advantage = centred.broadcast_div(&std)?;
+            let var = centred.sqr()?.mean_keepdim(0)?;
+            let var = if self.cfg.adv_norm_joint {
+                var.mean_keepdim(1)?
+            } else {
+                var
+            };
+            advantage = centred.broadcast_div(&(var + 1e-8)?.sqrt()?)?;
         }
         let critic_loss = ((value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
 

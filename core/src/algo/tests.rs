@@ -86,6 +86,7 @@ impl Fixture {
                 lambda_mon: 1.0,
                 lambda_critic: 0.5,
                 adv_norm: false,
+                adv_norm_joint: false,
             },
         };
         let mu: Vec<f64> = uniform(&mut rng, b * l.mu_dim(), -1.0, 1.0)
@@ -281,6 +282,7 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
             lambda_mon: 1.0,
             lambda_critic: 0.5,
             adv_norm: false,
+            adv_norm_joint: false,
         };
         let pcpn = random_pcpn(&l, DType::F32);
         let obs = uniform(&mut rng, b * l.obs_dim, -1.0, 1.0);
