@@ -19,14 +19,14 @@ fn first_full_window(metrics: &std::path::Path) -> f64 {
         .unwrap()
 }
 
-/// The first 100 episodes average over 300 steps (the random policy rarely finds the
-/// goal) and the last 100 under 40.
-fn assert_learned(o: &saver_learner::TrainerOutcome, algo: &str) {
+/// The first 100 episodes average over `start_min` steps (the initial policy rarely
+/// finds the goal) and the last 100 under 40.
+fn assert_learned(o: &saver_learner::TrainerOutcome, algo: &str, start_min: f64) {
     let start = first_full_window(&o.metrics);
     let end = o.mean_ep_len_100.unwrap();
     assert!(
-        start > 300.0,
-        "the random policy already solves it: {start}"
+        start > start_min,
+        "the initial policy already solves it: {start}"
     );
     assert!(
         end < 40.0,
@@ -44,7 +44,7 @@ fn a2c_learns_angle_d2() {
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
     let config = RunConfig::paper(spec, Algo::A2c, 150_000);
     let o = train_with(&config, &dir, None, Arc::new(AtomicBool::new(false)), false).unwrap();
-    assert_learned(&o, "A2C");
+    assert_learned(&o, "A2C", 300.0);
     std::fs::remove_dir_all(dir).ok();
 }
 
@@ -83,11 +83,15 @@ fn column(metrics: &std::path::Path, name: &str) -> Vec<f64> {
         .collect()
 }
 
-/// The default SAVER (Adam 3e-4, μ = tanh, log σ in [-4.6, 0], per-dimension advantage
-/// normalisation) with a PCPN pretrained 1,000 batches. Measured, 150,000 steps, 16
-/// actors: the last 100 episodes average 20.3 (seed 0; 88 at 100 k), 31.5 (seed 1) and
-/// 14.1 (seed 2); the threshold 40 (as for A2C) leaves 2x margin for seed 0. Max |μ| over the
-/// run 0.99998: the tanh head keeps μ in the PCPN's domain.
+/// The default SAVER (Adam 1e-3, μ = tanh, log σ in [-4.6, 0], advantages centred per
+/// dimension and scaled by one std over all) with a PCPN pretrained 1,000 batches.
+/// Measured, 150,000 steps, 16 actors (the same run as `saver train --algo saver --dim
+/// 2 --steps 150000 --pretrain-batches 1000 --seed S`): seed 0 (this test) — the first
+/// 100 episodes, done by 29 k steps, average 269 (it learns while they run), 23.1 at
+/// 100 k, the last 100 12.5; seed 1: 243 -> 12.1; seed 2: 222 -> 11.9. The thresholds 150 and 40 leave
+/// 1.8x and 3x margin. Max |μ| over the run 1.0 (to f32 precision): the tanh head keeps
+/// μ in the PCPN's domain. (Adam 3e-4 with one std per dimension, the default before:
+/// 20.3 / 31.5 / 14.1 at 150 k.)
 #[test]
 fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
     let dir = temp_dir("saver-learn");
@@ -104,7 +108,7 @@ fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
         false,
     )
     .unwrap();
-    assert_learned(&o, "SAVER");
+    assert_learned(&o, "SAVER", 150.0);
     let mu = column(&o.metrics, "mu_abs_max");
     let worst = mu.iter().cloned().fold(0.0, f64::max);
     assert!(worst <= 1.0, "μ left [-1, 1]: max |μ| {worst}");
