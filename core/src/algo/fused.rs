@@ -22,6 +22,7 @@
 
 use crate::config::SaverConfig;
 use crate::embedding::{cosine_embedding_to, EMBED_DIM};
+use crate::nets::PCPN_HEAD_HIDDEN;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Threads for the blocks; 0 = one per core.
@@ -46,8 +47,6 @@ pub fn pcpn_threads() -> usize {
 
 /// Transitions per block (R = 8·32 = 256 rows at K = 32).
 const BLOCK: usize = 8;
-/// Width of a head's hidden layer.
-pub const HEAD_HIDDEN: usize = 64;
 
 /// The per-dimension heads of a frozen PCPN as plain row-major arrays.
 pub struct Heads {
@@ -185,7 +184,7 @@ fn unit_body(
     b0: usize,
     s: &mut Scratch,
 ) -> (f64, f64, Vec<f32>) {
-    let (w, h, k) = (EMBED_DIM, HEAD_HIDDEN, x.k);
+    let (w, h, k) = (EMBED_DIM, PCPN_HEAD_HIDDEN, x.k);
     let n = BLOCK.min(x.b - b0);
     let rows = n * k;
     let w2 = &heads.w2[j * w * h..(j + 1) * w * h];
