@@ -31,7 +31,7 @@ static PCPN_THREADS: AtomicUsize = AtomicUsize::new(0);
 /// Sets the threads SAVER's PCPN blocks run on (0 = one per core, the default).
 ///
 /// Separate from candle's own thread count: on the 2-core reference machine the blocks
-/// run 1.4-1.7x faster on two threads (d = 4 and 16), while candle's small agent and
+/// run 1.3-1.6x faster on two threads (d = 4 to 16), while candle's small agent and
 /// critic matmuls are slower on two (`saver bench`).
 pub fn set_pcpn_threads(n: usize) {
     PCPN_THREADS.store(n, Ordering::Relaxed);
