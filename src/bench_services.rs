@@ -3,13 +3,13 @@
 //! - the learner's ingress alone: rollouts accepted per second with no updates;
 //! - weight-broadcast latency to 16 WatchWeights subscribers (p50 / p99).
 
+use crate::services::serve_hub_on_loopback;
 use crate::train::{follow, start_learner, train_with};
 use anyhow::{Context, Result};
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
 use saver_core::link::PolicyWeights;
 use saver_core::rollout::Rollout;
-use saver_learner::grpc::{serve, LearnerService};
 use saver_learner::Hub;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
@@ -26,15 +26,6 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
         .build()?)
 }
 
-/// A served hub on 127.0.0.1:0; returns its URL.
-fn serve_hub(rt: &tokio::runtime::Runtime, hub: Arc<Hub>) -> Result<String> {
-    let (service, _status) = LearnerService::new(hub);
-    let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
-    let url = format!("http://{}", listener.local_addr()?);
-    rt.spawn(serve(service, listener, std::future::pending()));
-    Ok(url)
-}
-
 /// Env steps/s of the embedded run and of the same run with 16 actor processes (angle
 /// d = 4, sync mode; SAVER with a random PCPN).
 pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64)> {
@@ -46,16 +37,20 @@ pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64)> {
         algo.name(),
         std::process::id()
     ));
-    let pcpn = || {
-        (algo == Algo::Saver)
-            .then(|| crate::bench::random_pcpn(&spec, &candle_core::Device::Cpu))
-            .transpose()
-    };
+    let pcpn = (algo == Algo::Saver)
+        .then(|| crate::bench::random_pcpn(&spec, &candle_core::Device::Cpu))
+        .transpose()?;
     let stop = Arc::new(AtomicBool::new(false));
-    let emb = train_with(&config, &dir.join("embedded"), pcpn()?, stop.clone(), false)?;
+    let emb = train_with(
+        &config,
+        &dir.join("embedded"),
+        pcpn.clone(),
+        stop.clone(),
+        false,
+    )?;
     let rt = runtime()?;
-    let learner = start_learner(&config, &dir.join("grpc"), pcpn()?, stop, 0)?;
-    let url = serve_hub(&rt, learner.hub.clone())?;
+    let learner = start_learner(&config, &dir.join("grpc"), pcpn, stop, 0)?;
+    let url = serve_hub_on_loopback(&rt, learner.hub.clone(), Default::default())?;
     let exe = std::env::current_exe().context("finding the saver binary")?;
     let mut actors = Vec::new();
     for _ in 0..config.actors {
@@ -102,7 +97,7 @@ pub fn ingress(seconds: f64) -> Result<f64> {
         }
     });
     let rt = runtime()?;
-    let url = serve_hub(&rt, hub.clone())?;
+    let url = serve_hub_on_loopback(&rt, hub.clone(), Default::default())?;
     let n = config.rollout as usize;
     let deadline = Instant::now() + Duration::from_secs_f64(seconds);
     let tasks: Vec<_> = (0..16u32)
@@ -191,7 +186,7 @@ pub fn broadcast_latency(versions: u64) -> Result<(f64, f64)> {
         4,
     );
     let rt = runtime()?;
-    let url = serve_hub(&rt, hub.clone())?;
+    let url = serve_hub_on_loopback(&rt, hub.clone(), Default::default())?;
     let published: Arc<Mutex<HashMap<u64, Instant>>> = Arc::default();
     let samples: Arc<Mutex<Vec<f64>>> = Arc::default();
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();

@@ -27,11 +27,13 @@ pub mod train;
 /// - SAVER's fused PCPN blocks have their own thread count, one per core unless
 ///   SAVER_PCPN_THREADS says otherwise (see `saver_core::algo::set_pcpn_threads`).
 pub fn init_process(threads: Option<usize>) {
-    if let Some(n) = std::env::var("SAVER_PCPN_THREADS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-    {
-        saver_core::algo::set_pcpn_threads(n);
+    if let Ok(v) = std::env::var("SAVER_PCPN_THREADS") {
+        match v.parse() {
+            Ok(n) => saver_core::algo::set_pcpn_threads(n),
+            Err(_) => eprintln!(
+                "warning: SAVER_PCPN_THREADS={v:?} is not a thread count; using one per core"
+            ),
+        }
     }
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets allocator parameters; it is called before other threads.

@@ -29,6 +29,24 @@ pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
         .context("starting the async runtime")
 }
 
+/// Serves the Learner service over `hub` (with `access`) on 127.0.0.1:0 on `rt`, for
+/// as long as the runtime lives; returns its URL (`saver bench` and the tests).
+pub fn serve_hub_on_loopback(
+    rt: &tokio::runtime::Runtime,
+    hub: Arc<saver_learner::Hub>,
+    access: saver_proto::Access,
+) -> Result<String> {
+    let (service, _status) = LearnerService::new(hub);
+    let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
+    let url = format!("http://{}", listener.local_addr()?);
+    rt.spawn(saver_learner::grpc::serve(
+        service.with_access(access),
+        listener,
+        std::future::pending(),
+    ));
+    Ok(url)
+}
+
 async fn bind(addr: SocketAddr) -> Result<tokio::net::TcpListener> {
     tokio::net::TcpListener::bind(addr)
         .await

@@ -21,35 +21,33 @@ pub fn cosine_embedding_into(tau: f32, out: &mut [f32]) {
 /// The embedding of every τ: [taus.len(), width], row-major.
 pub fn cosine_embedding(taus: &[f32], width: usize) -> Vec<f32> {
     let mut out = vec![0.0f32; taus.len() * width];
-    cosine_embedding_to(taus, width, &mut out);
-    out
-}
-
-/// [`cosine_embedding`] into `out` ([taus.len(), width]).
-///
-/// The same recurrence as [`cosine_embedding_into`], run for `LANES` values of τ side
-/// by side: one τ's recurrence is a chain of dependent multiply-adds, so eight
-/// independent chains keep the FPU busy and vectorise, with bit-identical results
-/// (it was 16 % of a SAVER update at d = 4 in a perf profile as a single chain).
-pub fn cosine_embedding_to(taus: &[f32], width: usize, out: &mut [f32]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2 (checked just now).
-        return unsafe { embedding_avx2(taus, width, out) };
+        unsafe { embedding_avx2(taus, width, &mut out) };
+        return out;
     }
-    embedding_lanes(taus, width, out)
+    cosine_embedding_lanes(taus, width, &mut out);
+    out
 }
 
-/// [`embedding_lanes`] compiled with AVX2 (four f64 lanes per instruction instead of
-/// two); no `mul_add` is written, so the bits are the same.
+/// [`cosine_embedding_lanes`] compiled with AVX2 (four f64 lanes per instruction
+/// instead of two); no `mul_add` is written, so the bits are the same.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn embedding_avx2(taus: &[f32], width: usize, out: &mut [f32]) {
-    embedding_lanes(taus, width, out)
+    cosine_embedding_lanes(taus, width, out)
 }
 
+/// [`cosine_embedding`] into `out` ([taus.len(), width]): the same recurrence as
+/// [`cosine_embedding_into`], run for `LANES` values of τ side by side. One τ's
+/// recurrence is a chain of dependent multiply-adds, so eight independent chains keep
+/// the FPU busy and vectorise, with bit-identical results (it was 16 % of a SAVER
+/// update at d = 4 in a perf profile as a single chain). Always inlined, so a caller
+/// compiled with other target features (the fused PCPN blocks) gets it compiled with
+/// them.
 #[inline(always)]
-fn embedding_lanes(taus: &[f32], width: usize, out: &mut [f32]) {
+pub(crate) fn cosine_embedding_lanes(taus: &[f32], width: usize, out: &mut [f32]) {
     const LANES: usize = 8;
     assert_eq!(out.len(), taus.len() * width, "embedding buffer size");
     let mut rows = out.chunks_exact_mut(width * LANES);

@@ -199,15 +199,15 @@ pub fn incoming(listener: tokio::net::TcpListener) -> tonic::transport::server::
     tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true))
 }
 
-/// The transport settings every SAVER server uses (see [`Access::server`] for TLS): no
-/// Nagle delay (for a listener of its own: see [`incoming`]); small receive windows (64 KiB per stream, 1 MiB per connection), so an
-/// actor cannot park thousands of rollouts in flight that are stale when they arrive
-/// (the clients' windows, which carry weights the other way, are large); keepalive
-/// pings (a peer behind a cut link is dropped, so its streams end and a sync round
-/// stops waiting for it).
+/// The transport settings every SAVER server uses (see [`Access::server`] for TLS):
+/// small receive windows (64 KiB per stream, 1 MiB per connection), so an actor cannot
+/// park thousands of rollouts in flight that are stale when they arrive (the clients'
+/// windows, which carry weights the other way, are large); keepalive pings (a peer
+/// behind a cut link is dropped, so its streams end and a sync round stops waiting for
+/// it). No Nagle delay comes from [`incoming`]: every SAVER server is fed a listener,
+/// for which `Server::tcp_nodelay` does nothing.
 pub fn server() -> tonic::transport::Server {
     tonic::transport::Server::builder()
-        .tcp_nodelay(true)
         .initial_stream_window_size(Some(64 << 10))
         .initial_connection_window_size(Some(1 << 20))
         .http2_keepalive_interval(Some(KEEPALIVE_INTERVAL))

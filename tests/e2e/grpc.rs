@@ -120,7 +120,7 @@ fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
-    let url = crate::serve_learner(&rt, hub.clone(), Default::default());
+    let url = saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default()).unwrap();
     let spawn_actor = |i: u64| {
         let url = url.clone();
         std::thread::spawn(move || {

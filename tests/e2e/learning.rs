@@ -88,9 +88,9 @@ fn column(metrics: &std::path::Path, name: &str) -> Vec<f64> {
 /// Measured, 150,000 steps, 16 actors (the same run as `saver train --algo saver --dim
 /// 2 --steps 150000 --pretrain-batches 1000 --seed S`): seed 0 (this test) — the first
 /// 100 episodes, done by 29 k steps, average 269 (it learns while they run), 23.1 at
-/// 100 k, the last 100 12.5; seed 1: 243 -> 12.1; seed 2: 222 -> 11.9. The thresholds 150 and 40 leave
-/// 1.8x and 3x margin. Max |μ| over the run 1.0 (to f32 precision): the tanh head keeps
-/// μ in the PCPN's domain. (Adam 3e-4 with one std per dimension, the default before:
+/// 100 k, the last 100 12.5; seed 1: 243 -> 12.1; seed 2: 222 -> 11.9. The
+/// thresholds 150 and 40 leave 1.8x and 3x margin. Max |μ| over the run 1.0 (to f32
+/// precision): the tanh head keeps μ in the PCPN's domain. (Adam 3e-4 with one std per dimension, the default before:
 /// 20.3 / 31.5 / 14.1 at 150 k.)
 #[test]
 fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {

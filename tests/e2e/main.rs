@@ -36,23 +36,3 @@ pub fn assert_tensors_in(part: &[saver_proto::NamedTensor], whole: &[saver_proto
         );
     }
 }
-
-/// Serves the Learner service over `hub` (with `access`) on 127.0.0.1:0 on `rt`, for as
-/// long as the runtime lives; returns its URL.
-pub fn serve_learner(
-    rt: &tokio::runtime::Runtime,
-    hub: std::sync::Arc<saver_learner::Hub>,
-    access: saver_proto::Access,
-) -> String {
-    let (service, _status) = saver_learner::grpc::LearnerService::new(hub);
-    let listener = rt
-        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
-        .unwrap();
-    let url = format!("http://{}", listener.local_addr().unwrap());
-    rt.spawn(saver_learner::grpc::serve(
-        service.with_access(access),
-        listener,
-        std::future::pending(),
-    ));
-    url
-}

@@ -21,7 +21,7 @@
 //! so the result does not depend on the thread count.
 
 use crate::config::SaverConfig;
-use crate::embedding::{cosine_embedding_to, EMBED_DIM};
+use crate::embedding::{cosine_embedding_lanes, EMBED_DIM};
 use crate::nets::PCPN_HEAD_HIDDEN;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -62,10 +62,10 @@ pub struct Heads {
 
 /// What the blocks add up to.
 pub struct Fused {
-    /// Σ ρ_τ(δ)·Â over every row (unnormalised).
-    pub actor_sum: f64,
-    /// Σ Huber_1(relu(q_a − q_b)) over every ascending pair (unnormalised).
-    pub mon_sum: f64,
+    /// L_a = Σ ρ_τ(δ)·Â / (B·K·d).
+    pub actor_loss: f32,
+    /// L_mon = λ·2K/(B·K·K·d) Σ Huber_1(relu(q_a − q_b)) over ascending pairs.
+    pub mon_loss: f32,
     /// dL/dz [B, d·128] (before z's ReLU mask).
     pub dz: Vec<f32>,
 }
@@ -86,12 +86,23 @@ pub struct Inputs<'a> {
     pub d: usize,
 }
 
+/// What every block reads: the heads, the inputs, the loss constants and the two
+/// normalisers 1/(B·K·d) (L_a) and λ·2K/(B·K·K·d) (L_mon).
+struct Job<'a> {
+    heads: &'a Heads,
+    x: &'a Inputs<'a>,
+    cfg: &'a SaverConfig,
+    qn: f64,
+    mn: f64,
+}
+
 /// Scratch buffers of one block, reused across the blocks a worker runs.
 #[derive(Default)]
 struct Scratch {
     cos: Vec<f32>,
     e: Vec<f32>,
     u: Vec<f32>,
+    q: Vec<f32>,
     dq: Vec<f32>,
     order: Vec<usize>,
 }
@@ -101,11 +112,19 @@ pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig) -> Fused {
     let units: Vec<(usize, usize)> = (0..x.d)
         .flat_map(|j| (0..x.b).step_by(BLOCK).map(move |b0| (j, b0)))
         .collect();
+    let (b, k, d) = (x.b as f64, x.k as f64, x.d as f64);
+    let job = Job {
+        heads,
+        x,
+        cfg,
+        qn: 1.0 / (b * k * d),
+        mn: cfg.lambda_mon * 2.0 * k / (b * k * k * d),
+    };
     let threads = pcpn_threads().clamp(1, units.len().max(1));
     let run_of = |part: &[(usize, usize)]| {
         let mut s = Scratch::default();
         part.iter()
-            .map(|&(j, b0)| unit(heads, x, cfg, j, b0, &mut s))
+            .map(|&(j, b0)| unit(&job, j, b0, &mut s))
             .collect::<Vec<_>>()
     };
     let parts: Vec<(f64, f64, Vec<f32>)> = if threads == 1 {
@@ -135,8 +154,8 @@ pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig) -> Fused {
         }
     }
     Fused {
-        actor_sum,
-        mon_sum,
+        actor_loss: (actor_sum * job.qn) as f32,
+        mon_loss: (mon_sum * job.mn) as f32,
         dz,
     }
 }
@@ -146,44 +165,24 @@ pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig) -> Fused {
 /// Compiled twice: for the baseline x86-64 target and with AVX2 (8 f32 lanes instead
 /// of 4), picked at run time. No `mul_add` is written and no float reduction is
 /// reordered, so both give the same bits.
-fn unit(
-    heads: &Heads,
-    x: &Inputs,
-    cfg: &SaverConfig,
-    j: usize,
-    b0: usize,
-    s: &mut Scratch,
-) -> (f64, f64, Vec<f32>) {
+fn unit(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<f32>) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2 (checked just now).
-        return unsafe { unit_avx2(heads, x, cfg, j, b0, s) };
+        return unsafe { unit_avx2(job, j, b0, s) };
     }
-    unit_body(heads, x, cfg, j, b0, s)
+    unit_body(job, j, b0, s)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn unit_avx2(
-    heads: &Heads,
-    x: &Inputs,
-    cfg: &SaverConfig,
-    j: usize,
-    b0: usize,
-    s: &mut Scratch,
-) -> (f64, f64, Vec<f32>) {
-    unit_body(heads, x, cfg, j, b0, s)
+unsafe fn unit_avx2(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<f32>) {
+    unit_body(job, j, b0, s)
 }
 
 #[inline(always)]
-fn unit_body(
-    heads: &Heads,
-    x: &Inputs,
-    cfg: &SaverConfig,
-    j: usize,
-    b0: usize,
-    s: &mut Scratch,
-) -> (f64, f64, Vec<f32>) {
+fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<f32>) {
+    let (heads, x) = (job.heads, job.x);
     let (w, h, k) = (EMBED_DIM, PCPN_HEAD_HIDDEN, x.k);
     let n = BLOCK.min(x.b - b0);
     let rows = n * k;
@@ -196,7 +195,8 @@ fn unit_body(
     let taus = &x.taus[(j * x.b + b0) * k..(j * x.b + b0 + n) * k];
 
     s.cos.resize(rows * w, 0.0);
-    cosine_embedding_to(taus, w, &mut s.cos);
+    // The inlined recurrence, so that it is compiled with this unit's features.
+    cosine_embedding_lanes(taus, w, &mut s.cos);
     s.e.clear();
     for (r, c) in s.cos.chunks_exact(w).enumerate() {
         let zb = b0 + r / k;
@@ -205,29 +205,28 @@ fn unit_body(
     }
     s.u.resize(rows * h, 0.0);
     matmul(&mut s.u, &s.e, w2, rows, w, h, false);
-    let mut q = Vec::with_capacity(rows);
+    s.q.clear();
     for urow in s.u.chunks_exact_mut(h) {
         for (v, &bias) in urow.iter_mut().zip(b2) {
             *v = (*v + bias).max(0.0);
         }
-        q.push(dot(urow, w3) + b3);
+        s.q.push(dot(urow, w3) + b3);
     }
 
     s.dq.clear();
     s.dq.resize(rows, 0.0);
-    let (qn, mn) = norms(x, cfg);
     let (mut la, mut lm) = (0.0f64, 0.0f64);
     for t in 0..n {
         let b = b0 + t;
         let rg = t * k..(t + 1) * k;
         let (a, m) = transition_grad(
-            &q[rg.clone()],
+            &s.q[rg.clone()],
             &taus[rg.clone()],
             x.state_delta[b * x.d + j],
             x.advantage[b * x.d + j],
             &mut s.dq[rg],
-            cfg,
-            (qn, mn as f32),
+            job.cfg,
+            (job.qn, job.mn as f32),
             &mut s.order,
         );
         la += a;
@@ -254,15 +253,6 @@ fn unit_body(
         }
     }
     (la, lm, dz)
-}
-
-/// 1/(B·K·d) for L_a and λ·2K/(B·K·K·d) for L_mon.
-pub fn norms(x: &Inputs, cfg: &SaverConfig) -> (f64, f64) {
-    let (b, k, d) = (x.b as f64, x.k as f64, x.d as f64);
-    (
-        1.0 / (b * k * d),
-        cfg.lambda_mon * 2.0 * k / (b * k * k * d),
-    )
 }
 
 /// One transition's K rows for one dimension: adds dL/dq into `gs` and returns the

@@ -91,7 +91,6 @@ impl PcpnGrad {
             d,
         };
         let out = fused::run(&self.heads, &batch, cfg);
-        let (qn, mn) = fused::norms(&batch, cfg);
         let dz = Tensor::from_vec(out.dz, z.shape(), z.device())?;
         let dz = dz.mul(&z.gt(0.0)?.to_dtype(z.dtype())?)?;
         let dh = dz
@@ -99,8 +98,8 @@ impl PcpnGrad {
             .mul(&h.gt(0.0)?.to_dtype(h.dtype())?)?;
         let dx = dh.matmul(&self.w0t)?;
         Ok(InputGrad {
-            actor_loss: (out.actor_sum * qn) as f32,
-            mon_loss: (out.mon_sum * mn) as f32,
+            actor_loss: out.actor_loss,
+            mon_loss: out.mon_loss,
             dx,
         })
     }
