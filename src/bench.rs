@@ -37,8 +37,11 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 100)]
     pub cycle_updates: u64,
     /// Skip the gRPC service measurements.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "services_only")]
     pub no_services: bool,
+    /// Run only the gRPC service measurements.
+    #[arg(long)]
+    pub services_only: bool,
 }
 
 /// Calls `f` repeatedly for about `seconds` (after one warm-up call); mean seconds per call.
@@ -152,6 +155,9 @@ fn time_update(algo: Algo, d: usize, seconds: f64) -> Result<(f64, f64, usize)> 
 
 /// Runs `saver bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
+    if args.services_only {
+        return services(&args);
+    }
     // candle runs on RAYON_NUM_THREADS (1 unless set: see `init_process`).
     let peak = matmul_peak(args.seconds)?;
     println!(
@@ -242,12 +248,19 @@ fn services(args: &BenchArgs) -> Result<()> {
         (Algo::A2c, 4 * args.cycle_updates),
         (Algo::Saver, args.cycle_updates),
     ] {
-        let (emb, procs) = processes_vs_embedded(algo, updates)?;
+        let (emb, bytes, files) = processes_vs_embedded(algo, updates)?;
         println!(
-            "  {}: 16 actor processes vs embedded: {procs:.0} vs {emb:.0} env steps/s = {:.2} (goal >= 0.8)",
+            "  {}: 16 actor processes vs embedded: {bytes:.0} vs {emb:.0} env steps/s = {:.2} (goal >= 0.8)",
             algo.name(),
-            procs / emb
+            bytes / emb
         );
+        if let Some(files) = files {
+            println!(
+                "  {}:   the same, weights read from the learner's files in /dev/shm: {files:.0} env steps/s = {:.2}",
+                algo.name(),
+                files / emb
+            );
+        }
     }
     let rate = ingress(args.seconds.max(2.0))?;
     println!(

@@ -13,6 +13,7 @@ use saver_core::rollout::Rollout;
 use saver_learner::Hub;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
+use saver_proto::weights_dir::WeightsDir;
 use std::collections::HashMap;
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -26,9 +27,11 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
         .build()?)
 }
 
-/// Env steps/s of the embedded run and of the same run with 16 actor processes (angle
-/// d = 4, sync mode; SAVER with a random PCPN).
-pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64)> {
+/// Env steps/s of the embedded run, and of the same run with 16 actor processes that
+/// take the weights over their sockets, then from the learner's files in /dev/shm
+/// (angle d = 4, sync mode; SAVER with a random PCPN). The files row is absent where
+/// there is no /dev/shm.
+pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64, Option<f64>)> {
     let spec = EnvSpec::new(EnvKind::Angle, 4)?;
     let mut config = RunConfig::recommended(spec, algo, 0);
     config.steps = updates * config.batch_transitions();
@@ -40,17 +43,39 @@ pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64)> {
     let pcpn = (algo == Algo::Saver)
         .then(|| crate::bench::random_pcpn(&spec, &candle_core::Device::Cpu))
         .transpose()?;
-    let stop = Arc::new(AtomicBool::new(false));
     let emb = train_with(
         &config,
         &dir.join("embedded"),
         pcpn.clone(),
-        stop.clone(),
+        Arc::new(AtomicBool::new(false)),
         false,
     )?;
+    let bytes = over_processes(&config, &dir.join("bytes"), pcpn.clone(), None)?;
+    let files = match WeightsDir::default_path() {
+        Some(p) => Some(over_processes(
+            &config,
+            &dir.join("files"),
+            pcpn,
+            Some(WeightsDir::create(&p)?),
+        )?),
+        None => None,
+    };
+    std::fs::remove_dir_all(&dir).ok();
+    // Every clock starts once all actors have registered (the trainer's own clock).
+    Ok((emb.steps as f64 / emb.wall_s, bytes, files))
+}
+
+/// Env steps/s of `config` with its actors as `saver actor` processes.
+fn over_processes(
+    config: &RunConfig,
+    out: &std::path::Path,
+    pcpn: Option<saver_core::nets::Pcpn>,
+    weights_dir: Option<WeightsDir>,
+) -> Result<f64> {
     let rt = runtime()?;
-    let learner = start_learner(&config, &dir.join("grpc"), pcpn, stop, 0)?;
-    let url = serve_hub_on_loopback(&rt, learner.hub.clone(), Default::default())?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let learner = start_learner(config, out, pcpn, stop, 0)?;
+    let url = serve_hub_on_loopback(&rt, learner.hub.clone(), Default::default(), weights_dir)?;
     let exe = std::env::current_exe().context("finding the saver binary")?;
     let mut actors = Vec::new();
     for _ in 0..config.actors {
@@ -63,16 +88,11 @@ pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64)> {
                 .context("starting an actor process")?,
         );
     }
-    let (_, remote) = follow(learner, &config, false, |_| {})?;
+    let (_, remote) = follow(learner, config, false, |_| {})?;
     for mut a in actors {
         let _ = a.wait();
     }
-    std::fs::remove_dir_all(&dir).ok();
-    // Both clocks start once every actor has registered (the trainer's own clock).
-    Ok((
-        emb.steps as f64 / emb.wall_s,
-        remote.steps as f64 / remote.wall_s,
-    ))
+    Ok(remote.steps as f64 / remote.wall_s)
 }
 
 /// Transitions per second the learner's gRPC ingress accepts with no updates: 16
@@ -97,7 +117,7 @@ pub fn ingress(seconds: f64) -> Result<f64> {
         }
     });
     let rt = runtime()?;
-    let url = serve_hub_on_loopback(&rt, hub.clone(), Default::default())?;
+    let url = serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None)?;
     let n = config.rollout as usize;
     let deadline = Instant::now() + Duration::from_secs_f64(seconds);
     let tasks: Vec<_> = (0..16u32)
@@ -186,7 +206,7 @@ pub fn broadcast_latency(versions: u64) -> Result<(f64, f64)> {
         4,
     );
     let rt = runtime()?;
-    let url = serve_hub_on_loopback(&rt, hub.clone(), Default::default())?;
+    let url = serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None)?;
     let published: Arc<Mutex<HashMap<u64, Instant>>> = Arc::default();
     let samples: Arc<Mutex<Vec<f64>>> = Arc::default();
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
@@ -202,7 +222,7 @@ pub fn broadcast_latency(versions: u64) -> Result<(f64, f64)> {
                 .await?
                 .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
             let mut stream = client
-                .watch_weights(pb::WatchRequest {})
+                .watch_weights(pb::WatchRequest { by_file: false })
                 .await?
                 .into_inner();
             let _ = ready.send(());

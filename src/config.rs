@@ -106,6 +106,13 @@ pub struct RunArgs {
     /// Clip each update's global gradient norm to this.
     #[arg(long)]
     pub grad_clip: Option<f64>,
+    /// Let the learning rate fall linearly to zero over the run's updates.
+    #[arg(long)]
+    pub lr_decay: Option<bool>,
+    /// SAVER: weight of the penalty on the mean head's raw output beyond ±2 (keeps
+    /// tanh(raw) out of saturation; 0: off).
+    #[arg(long)]
+    pub mu_raw_penalty: Option<f64>,
 }
 
 /// The same settings as a TOML file; unknown keys are errors.
@@ -138,6 +145,8 @@ struct FileConfig {
     adv_norm: Option<bool>,
     adv_norm_joint: Option<bool>,
     grad_clip: Option<f64>,
+    lr_decay: Option<bool>,
+    mu_raw_penalty: Option<f64>,
 }
 
 /// `saver train` flags.
@@ -256,6 +265,12 @@ impl RunArgs {
         if let Some(v) = pick!(grad_clip) {
             c.grad_clip = Some(v);
         }
+        if let Some(v) = pick!(lr_decay) {
+            c.lr_decay = v;
+        }
+        if let Some(v) = pick!(mu_raw_penalty) {
+            c.saver.mu_raw_penalty = v;
+        }
         c.validate()?;
         Ok(c)
     }
@@ -307,6 +322,8 @@ pub fn to_toml(c: &RunConfig) -> String {
     if let Some(g) = c.grad_clip {
         s.push_str(&format!("grad_clip = {g:?}\n"));
     }
+    s.push_str(&format!("lr_decay = {}\n", c.lr_decay));
+    s.push_str(&format!("mu_raw_penalty = {:?}\n", c.saver.mu_raw_penalty));
     s
 }
 
@@ -329,6 +346,8 @@ mod tests {
             adv_norm: Some(true),
             adv_norm_joint: Some(true),
             grad_clip: Some(0.5),
+            lr_decay: Some(true),
+            mu_raw_penalty: Some(0.5),
             ..Default::default()
         };
         let c = args.resolve().unwrap();

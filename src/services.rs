@@ -15,6 +15,7 @@ use saver_core::link::{LinkError, Registration};
 use saver_learner::grpc::{LearnerService, TrainerStatus};
 use saver_pcpn_trainer::service::{fetch, PcpnService};
 use saver_pcpn_trainer::{load_pcpn_bytes, PcpnStore};
+use saver_proto::weights_dir::WeightsDir;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -29,14 +30,16 @@ pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
         .context("starting the async runtime")
 }
 
-/// Serves the Learner service over `hub` (with `access`) on 127.0.0.1:0 on `rt`, for
-/// as long as the runtime lives; returns its URL (`saver bench` and the tests).
+/// Serves the Learner service over `hub` (with `access`, and writing the weights to
+/// `weights_dir` if given) on 127.0.0.1:0 on `rt`, for as long as the runtime lives;
+/// returns its URL (`saver bench` and the tests).
 pub fn serve_hub_on_loopback(
     rt: &tokio::runtime::Runtime,
     hub: Arc<saver_learner::Hub>,
     access: saver_proto::Access,
+    weights_dir: Option<WeightsDir>,
 ) -> Result<String> {
-    let (service, _status) = LearnerService::new(hub);
+    let (service, _status) = LearnerService::new(hub, weights_dir);
     let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
     let url = format!("http://{}", listener.local_addr()?);
     rt.spawn(saver_learner::grpc::serve(
@@ -104,9 +107,30 @@ pub struct LearnerArgs {
     /// and on Ctrl-C or SIGTERM; 0: only then. A restart with the same --out resumes.
     #[arg(long, default_value_t = 100)]
     pub checkpoint_every: u64,
+    /// Also write each version's weights here, so that actors on this machine read one
+    /// file instead of each receiving the bytes over its socket (default: a folder in
+    /// /dev/shm, i.e. memory, removed at exit; "none": stream the bytes to everyone).
+    /// Actors elsewhere, or that cannot read it, get the bytes as before.
+    #[arg(long, value_name = "DIR")]
+    pub weights_dir: Option<String>,
     /// Token and --insecure.
     #[command(flatten)]
     pub access: ServerAccess,
+}
+
+/// The learner's weights directory as `--weights-dir` asks.
+fn weights_dir(arg: Option<&str>) -> Result<Option<WeightsDir>> {
+    let path = match arg {
+        Some("none") => return Ok(None),
+        Some(p) => PathBuf::from(p),
+        None => match WeightsDir::default_path() {
+            Some(p) => p,
+            None => return Ok(None),
+        },
+    };
+    let dir = WeightsDir::create(&path)
+        .with_context(|| format!("creating the weights directory {}", path.display()))?;
+    Ok(Some(dir))
 }
 
 fn positive_secs(s: &str) -> Result<f64, String> {
@@ -150,7 +174,11 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     learner
         .hub
         .set_round_timeout(Duration::from_secs_f64(args.round_timeout));
-    let (service, status) = LearnerService::new(learner.hub.clone());
+    let dir = weights_dir(args.weights_dir.as_deref())?;
+    let shared = dir
+        .as_ref()
+        .map(|d| (d.path().display().to_string(), d.remover()));
+    let (service, status) = LearnerService::new(learner.hub.clone(), dir);
     let service = service.with_access(check);
     let listener = rt.block_on(bind(args.listen))?;
     let addr = listener.local_addr()?;
@@ -162,6 +190,9 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         config.actors,
         out.display()
     );
+    if let Some((path, _)) = &shared {
+        eprintln!("weights also go to {path}, read there by actors that share it");
+    }
     let (done_tx, done_rx) = tokio::sync::watch::channel(false);
     let exit_when_done = args.exit_when_done;
     let server = rt.spawn(saver_learner::grpc::serve(service, listener, async move {
@@ -193,7 +224,11 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         eprintln!("training finished; still serving the final weights on {addr} (Ctrl-C to stop)");
     }
     let _ = done_tx.send(true);
-    rt.block_on(server)?.context("serving")?;
+    let served = rt.block_on(server);
+    if let Some((_, remover)) = shared {
+        remover.remove();
+    }
+    served?.context("serving")?;
     Ok(())
 }
 
@@ -213,6 +248,10 @@ pub struct ActorArgs {
     /// after losing it); until then reconnect with jittered backoff.
     #[arg(long, default_value_t = 600)]
     pub connect_timeout: u64,
+    /// Always take the weights over the stream, even when the learner's weights
+    /// directory is readable here.
+    #[arg(long)]
+    pub no_shared_weights: bool,
     /// The learner's token and CA.
     #[command(flatten)]
     pub access: ClientArgs,
@@ -245,6 +284,7 @@ pub fn actor(args: ActorArgs) -> Result<()> {
             n_envs: args.envs,
         };
         let outcome = GrpcLink::connect_with(&args.learner, &access)
+            .map(|l| l.with_shared_files(!args.no_shared_weights))
             .map_err(ActorError::from)
             .and_then(|mut link| run_actor(&mut link, &reg, &stop));
         let why = match outcome {

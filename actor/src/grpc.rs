@@ -6,8 +6,11 @@ use saver_core::link::{Assignment, LearnerLink, LinkError, PolicyWeights, Regist
 use saver_core::rollout::Rollout;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
+use saver_proto::weights_dir::{is_version_file, shares};
 use saver_proto::{AddToken, ClientAccess};
 use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
@@ -29,6 +32,10 @@ pub struct GrpcLink {
     closed: watch::Receiver<Option<LinkError>>,
     /// Its sender, handed to the stream tasks.
     closed_tx: watch::Sender<Option<LinkError>>,
+    /// Read weights from the learner's weights directory when it is on this machine.
+    shared_files: bool,
+    /// Versions read from the learner's files (the rest came over the stream).
+    from_files: Arc<AtomicU64>,
 }
 
 fn status_error(s: tonic::Status) -> LinkError {
@@ -47,6 +54,30 @@ fn status_error(s: tonic::Status) -> LinkError {
 pub fn decode_weights(w: &pb::Weights) -> Result<PolicyWeights, LinkError> {
     let (tensors, _) = saver_proto::decode(&w.safetensors)
         .map_err(|e| LinkError::Rejected(format!("weights v{}: {e}", w.version)))?;
+    Ok(PolicyWeights {
+        version: w.version,
+        tensors,
+    })
+}
+
+/// Reads the file a Weights message names in the learner's weights directory; the
+/// file must carry the announced version.
+fn read_weights_file(dir: &Path, w: &pb::Weights) -> Result<PolicyWeights, String> {
+    if !is_version_file(&w.file) {
+        return Err(format!("{:?} is not a weights file name", w.file));
+    }
+    let path = dir.join(&w.file);
+    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let (tensors, meta) =
+        saver_proto::decode(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+    let version = meta.get("version").and_then(|v| v.parse::<u64>().ok());
+    if version != Some(w.version) {
+        return Err(format!(
+            "{} holds version {version:?}, not {}",
+            path.display(),
+            w.version
+        ));
+    }
     Ok(PolicyWeights {
         version: w.version,
         tensors,
@@ -82,7 +113,21 @@ impl GrpcLink {
             weights: None,
             closed,
             closed_tx,
+            shared_files: true,
+            from_files: Arc::default(),
         })
+    }
+
+    /// How many versions this link read from the learner's files.
+    pub fn weights_read_from_files(&self) -> u64 {
+        self.from_files.load(Ordering::Relaxed)
+    }
+
+    /// Whether to read the weights from the learner's files when they are reachable
+    /// (on by default; off: every version comes over the stream).
+    pub fn with_shared_files(mut self, on: bool) -> Self {
+        self.shared_files = on;
+        self
     }
 
     fn closed_reason(&self) -> Option<LinkError> {
@@ -132,8 +177,14 @@ impl GrpcLink {
         })
     }
 
-    /// Opens the rollout and weight streams (after registration).
-    fn open_streams(&mut self, actor_id: u32, session: u64) -> Result<(), LinkError> {
+    /// Opens the rollout and weight streams (after registration); with `files`, the
+    /// weights come as names of files in that directory.
+    fn open_streams(
+        &mut self,
+        actor_id: u32,
+        session: u64,
+        files: Option<PathBuf>,
+    ) -> Result<(), LinkError> {
         let mut client = self.client.clone();
         let (tx, rx) = mpsc::channel::<pb::Rollout>(4);
         let closed = self.closed_tx.clone();
@@ -166,14 +217,39 @@ impl GrpcLink {
         });
         let stream = self
             .rt
-            .block_on(client.watch_weights(pb::WatchRequest {}))
+            .block_on(client.watch_weights(pb::WatchRequest {
+                by_file: files.is_some(),
+            }))
             .map_err(status_error)?
             .into_inner();
         let (wtx, wrx) = watch::channel(None);
         let closed = self.closed_tx.clone();
+        let from_files = self.from_files.clone();
         self.rt.spawn(async move {
             let mut stream = stream;
             while let Some(w) = stream.next().await {
+                let w = match (w, &files) {
+                    (Ok(w), Some(dir)) if !w.file.is_empty() => {
+                        match read_weights_file(dir, &w) {
+                            Ok(p) => {
+                                from_files.fetch_add(1, Ordering::Relaxed);
+                                if wtx.send(Some(Arc::new(p))).is_err() {
+                                    return;
+                                }
+                                continue;
+                            }
+                            // Gone (this reader fell behind) or unreadable: the bytes.
+                            Err(e) => {
+                                tracing::debug!("weights file: {e}; asking for the bytes");
+                                let req = pb::WeightsRequest {
+                                    min_version: w.version,
+                                };
+                                client.get_weights(req).await.map(|r| r.into_inner())
+                            }
+                        }
+                    }
+                    (w, _) => w,
+                };
                 match w.map_err(status_error).and_then(|w| decode_weights(&w)) {
                     Ok(w) => {
                         if wtx.send(Some(Arc::new(w))).is_err() {
@@ -215,7 +291,16 @@ impl LearnerLink for GrpcLink {
                 "the learner's config does not match its hash (different versions?)".into(),
             ));
         }
-        self.open_streams(reply.actor_id, reg.session)?;
+        let files = (self.shared_files && !reply.weights_dir.is_empty())
+            .then(|| PathBuf::from(&reply.weights_dir))
+            .filter(|dir| shares(dir, &reply.weights_dir_id));
+        if let Some(dir) = &files {
+            tracing::info!(
+                "reading weights from the learner's files in {}",
+                dir.display()
+            );
+        }
+        self.open_streams(reply.actor_id, reg.session, files)?;
         Ok(Assignment {
             actor_id: reply.actor_id,
             config,

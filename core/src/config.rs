@@ -89,7 +89,17 @@ pub struct SaverConfig {
     /// rather than being scaled up to the size of the informative ones.
     #[serde(default)]
     pub adv_norm_joint: bool,
+    /// Weight of a penalty on the mean head's raw output beyond ±[`MU_RAW_LIMIT`]:
+    /// `w · Σ_j mean_batch relu(|raw_j| − limit)²`. With μ = tanh(raw), a mean pushed
+    /// deep into saturation gets no gradient back (tanh' ≈ 0) and stays there; on
+    /// angle that freezes a pair's direction at 0 or π, so one of its coordinates can
+    /// no longer move. 0: off (the paper).
+    #[serde(default)]
+    pub mu_raw_penalty: f64,
 }
+
+/// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
+pub const MU_RAW_LIMIT: f64 = 2.0;
 
 /// PCPN pretraining settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -132,6 +142,10 @@ pub struct RunConfig {
     pub lr: f64,
     /// Optimiser and its constants.
     pub optimizer: OptimizerConfig,
+    /// Let the learning rate fall linearly from `lr` to zero over the run's updates
+    /// (the paper: constant).
+    #[serde(default)]
+    pub lr_decay: bool,
     /// Clip the global gradient norm of each update to this (the paper: no clipping).
     pub grad_clip: Option<f64>,
     /// Bounds of the policy's μ and log σ (the paper: none).
@@ -190,6 +204,7 @@ impl RunConfig {
             gamma: 0.99,
             lr,
             optimizer: OptimizerConfig::RMSPROP_TF1,
+            lr_decay: false,
             grad_clip: None,
             head: HeadConfig::FAITHFUL,
             max_episode_steps: 1000,
@@ -201,6 +216,7 @@ impl RunConfig {
                 lambda_critic: 0.5,
                 adv_norm: false,
                 adv_norm_joint: false,
+                mu_raw_penalty: 0.0,
             },
             pretrain: PretrainConfig {
                 batches: paper_pretrain_batches(env.kind),
@@ -298,6 +314,7 @@ impl RunConfig {
         for (field, v) in [
             ("saver.lambda_mon", s.lambda_mon),
             ("saver.lambda_critic", s.lambda_critic),
+            ("saver.mu_raw_penalty", s.mu_raw_penalty),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("{v} must be finite and >= 0"));

@@ -5,6 +5,7 @@
 //! Adam with TensorFlow-1 semantics: `lr_t = lr·√(1 − β2^t)/(1 − β1^t)`,
 //! `θ ← θ − lr_t·m/(√v + ε̂)`.
 
+use crate::config::RunConfig;
 use crate::{CoreError, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
 use serde::{Deserialize, Serialize};
@@ -83,6 +84,8 @@ pub struct Optimizer {
     t: u64,
     /// Global gradient-norm clip, if any.
     clip: Option<f64>,
+    /// Decay the learning rate linearly to zero over this many steps, if set.
+    decay_over: Option<u64>,
 }
 
 impl Optimizer {
@@ -119,7 +122,34 @@ impl Optimizer {
             lr,
             t: 0,
             clip,
+            decay_over: None,
         })
+    }
+
+    /// The optimiser a run's config asks for: its kind, learning rate, gradient clip
+    /// and, with `lr_decay`, a rate that falls linearly to zero over the run's updates.
+    pub fn for_run(vars: Vec<(String, Var)>, config: &RunConfig) -> Result<Self> {
+        let mut opt = Self::with_clip(vars, config.optimizer, config.lr, config.grad_clip)?;
+        if config.lr_decay {
+            opt.decay_over = Some(config.steps.div_ceil(config.batch_transitions()));
+        }
+        Ok(opt)
+    }
+
+    /// Makes the learning rate fall linearly from its initial value to zero over
+    /// `steps` steps (A3C's schedule): step t (from 1) uses lr·(1 − (t − 1)/steps),
+    /// and every step after the last uses 0.
+    pub fn decaying_over(mut self, steps: u64) -> Self {
+        self.decay_over = Some(steps.max(1));
+        self
+    }
+
+    /// The learning rate the next step will use.
+    pub fn current_lr(&self) -> f64 {
+        match self.decay_over {
+            Some(n) => self.lr * (1.0 - self.t.min(n) as f64 / n as f64),
+            None => self.lr,
+        }
     }
 
     /// Steps taken so far.
@@ -146,6 +176,7 @@ impl Optimizer {
     /// are left alone (their slots too). Returns the gradients' global norm (before
     /// clipping).
     pub fn step(&mut self, grads: &GradStore) -> Result<f64> {
+        let lr = self.current_lr();
         self.t += 1;
         let norm = self.grad_norm(grads)?;
         let scale = match self.clip {
@@ -170,13 +201,13 @@ impl Optimizer {
                     let one_minus = 1.0f32 - decay as f32;
                     let ms = &self.slot1[i];
                     let ms = (ms + ((g.sqr()? - ms)? * one_minus as f64)?)?;
-                    let step = ((g * self.lr)? / (&ms + eps)?.sqrt()?)?;
+                    let step = ((g * lr)? / (&ms + eps)?.sqrt()?)?;
                     var.set(&(var.as_tensor() - step)?)?;
                     self.slot1[i] = ms.detach();
                 }
                 OptimizerConfig::Adam { beta1, beta2, eps } => {
                     let t = self.t as i32;
-                    let lr_t = self.lr * (1.0 - beta2.powi(t)).sqrt() / (1.0 - beta1.powi(t));
+                    let lr_t = lr * (1.0 - beta2.powi(t)).sqrt() / (1.0 - beta1.powi(t));
                     let m = ((&self.slot1[i] * beta1)? + (g * (1.0 - beta1))?)?;
                     let v = ((&self.slot2[i] * beta2)? + (g.sqr()? * (1.0 - beta2))?)?;
                     let step = ((&m * lr_t)? / (v.sqrt()? + eps)?)?;
@@ -306,5 +337,35 @@ mod tests {
         opt.step(&loss.backward().unwrap()).unwrap();
         let theta = v.as_tensor().to_vec1::<f32>().unwrap()[0];
         assert!((theta - 0.999).abs() < 1e-6, "{theta}");
+    }
+
+    #[test]
+    fn linear_decay_scales_each_step_and_reaches_zero() {
+        // Adam with a constant gradient takes steps of ≈ lr (bias-corrected m/√v = 1,
+        // see above). Over 4 steps the rates are 0.01·(1, 0.75, 0.5, 0.25), then 0:
+        // θ = 1 − 0.01·(1 + 0.75 + 0.5 + 0.25) = 0.975 after 4 steps and after 6.
+        let v = Var::from_slice(&[1f32], 1, &Device::Cpu).unwrap();
+        let mut opt = Optimizer::new(
+            vec![("w".into(), v.clone())],
+            OptimizerConfig::ADAM_TF1,
+            0.01,
+        )
+        .unwrap()
+        .decaying_over(4);
+        let mut seen = Vec::new();
+        for _ in 0..6 {
+            seen.push(opt.current_lr());
+            let loss = (v.as_tensor() * 3.0).unwrap().sum_all().unwrap();
+            opt.step(&loss.backward().unwrap()).unwrap();
+            if opt.steps() == 4 {
+                let theta = v.as_tensor().to_vec1::<f32>().unwrap()[0];
+                assert!((theta - 0.975).abs() < 1e-5, "{theta}");
+            }
+        }
+        for (got, want) in seen.iter().zip([0.01, 0.0075, 0.005, 0.0025, 0.0, 0.0]) {
+            assert!((got - want).abs() < 1e-12, "{seen:?}");
+        }
+        let theta = v.as_tensor().to_vec1::<f32>().unwrap()[0];
+        assert!((theta - 0.975).abs() < 1e-5, "{theta}");
     }
 }

@@ -9,6 +9,7 @@ use saver_core::rollout::Rollout;
 use saver_core::CoreError;
 use saver_proto::pb::learner_server::{Learner, LearnerServer};
 use saver_proto::pb::{self, RolloutAck};
+use saver_proto::weights_dir::WeightsDir;
 use saver_proto::{Access, CheckToken};
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
@@ -26,6 +27,8 @@ pub struct EncodedWeights {
     pub version: u64,
     /// safetensors bytes of the agent's tensors.
     pub bytes: Bytes,
+    /// Its file in the weights directory, when the learner writes one.
+    pub file: Option<String>,
 }
 
 /// Encodes weights as safetensors with their version in the metadata.
@@ -34,7 +37,31 @@ pub fn encode_weights(w: &PolicyWeights) -> Result<EncodedWeights, saver_proto::
     Ok(EncodedWeights {
         version: w.version,
         bytes: Bytes::from(saver_proto::encode(&w.tensors, &meta)?),
+        file: None,
     })
+}
+
+/// Encodes weights and, with a weights directory, writes them there too.
+fn publishable(w: &PolicyWeights, dir: &mut Option<WeightsDir>) -> Option<EncodedWeights> {
+    let mut e = match encode_weights(w) {
+        Ok(e) => e,
+        Err(e) => {
+            tracing::error!("encoding weights v{}: {e}", w.version);
+            return None;
+        }
+    };
+    if let Some(d) = dir {
+        match d.write(e.version, &e.bytes) {
+            Ok(name) => e.file = Some(name),
+            // Readers then get the bytes over the stream, as off-host ones do.
+            Err(err) => tracing::warn!(
+                "writing weights v{} to {}: {err}",
+                e.version,
+                d.path().display()
+            ),
+        }
+    }
+    Some(e)
 }
 
 /// The Learner service.
@@ -48,6 +75,8 @@ pub struct LearnerService {
     status: watch::Receiver<TrainerStatus>,
     /// The token every call must carry and the TLS identity (none by default).
     access: Access,
+    /// The weights directory (path, identity) that same-host actors may read.
+    weights_dir: Option<(String, String)>,
 }
 
 /// What the trainer side tells the service for `Status`.
@@ -101,11 +130,20 @@ async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> 
 
 impl LearnerService {
     /// A service for `hub`. Starts the thread that encodes each new version once and
-    /// publishes it to every watcher; returns the status sender the trainer side feeds.
-    pub fn new(hub: Arc<Hub>) -> (Self, watch::Sender<TrainerStatus>) {
-        let first = encode_weights(&hub.latest()).unwrap_or(EncodedWeights {
+    /// publishes it to every watcher (and, with `weights_dir`, writes it there for
+    /// same-host actors); returns the status sender the trainer side feeds.
+    pub fn new(
+        hub: Arc<Hub>,
+        weights_dir: Option<WeightsDir>,
+    ) -> (Self, watch::Sender<TrainerStatus>) {
+        let mut dir = weights_dir;
+        let shared = dir
+            .as_ref()
+            .map(|d| (d.path().display().to_string(), d.id().to_string()));
+        let first = publishable(&hub.latest(), &mut dir).unwrap_or(EncodedWeights {
             version: 0,
             bytes: Bytes::new(),
+            file: None,
         });
         let (tx, rx) = watch::channel(first);
         let bridge_hub = hub.clone();
@@ -114,26 +152,28 @@ impl LearnerService {
             .spawn(move || {
                 let mut next = 1;
                 while let Ok(w) = bridge_hub.wait_weights(next) {
-                    match encode_weights(&w) {
-                        Ok(e) => {
-                            if tx.send(e).is_err() {
-                                break;
-                            }
+                    if let Some(e) = publishable(&w, &mut dir) {
+                        if tx.send(e).is_err() {
+                            break;
                         }
-                        Err(e) => tracing::error!("encoding weights v{}: {e}", w.version),
                     }
                     next = w.version + 1;
                 }
                 // Publish the very last version too (the hub may close right after it).
-                if let Ok(e) = encode_weights(&bridge_hub.latest()) {
-                    tx.send_if_modified(|cur| {
-                        let newer = e.version > cur.version;
-                        if newer {
-                            *cur = e.clone();
-                        }
-                        newer
-                    });
+                let last = bridge_hub.latest();
+                if last.version > tx.borrow().version {
+                    if let Some(e) = publishable(&last, &mut dir) {
+                        tx.send_if_modified(|cur| {
+                            let newer = e.version > cur.version;
+                            if newer {
+                                *cur = e.clone();
+                            }
+                            newer
+                        });
+                    }
                 }
+                // `dir` drops here and removes its files: a reader that misses the
+                // last one asks GetWeights, which still serves it.
             })
             .expect("spawning a thread");
         let (status_tx, status_rx) = watch::channel(TrainerStatus::default());
@@ -143,6 +183,7 @@ impl LearnerService {
                 weights: rx,
                 status: status_rx,
                 access: Access::default(),
+                weights_dir: shared,
             },
             status_tx,
         )
@@ -168,6 +209,19 @@ impl LearnerService {
         pb::Weights {
             version: w.version,
             safetensors: w.bytes.clone(),
+            file: String::new(),
+        }
+    }
+
+    /// The reply to a watcher: the file's name when it asked for one and there is one.
+    fn watch_reply(w: &EncodedWeights, by_file: bool) -> pb::Weights {
+        match &w.file {
+            Some(name) if by_file => pb::Weights {
+                version: w.version,
+                safetensors: Bytes::new(),
+                file: name.clone(),
+            },
+            _ => Self::weights_reply(w),
         }
     }
 }
@@ -196,6 +250,8 @@ impl Learner for LearnerService {
             config_hash: a.config_hash,
             env: Some((&a.config.env).into()),
             mode: a.config.mode.name().to_string(),
+            weights_dir: self.weights_dir.clone().unwrap_or_default().0,
+            weights_dir_id: self.weights_dir.clone().unwrap_or_default().1,
         }))
     }
 
@@ -280,15 +336,16 @@ impl Learner for LearnerService {
 
     async fn watch_weights(
         &self,
-        _req: Request<pb::WatchRequest>,
+        req: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchWeightsStream>, Status> {
+        let by_file = req.into_inner().by_file;
         let mut rx = self.weights.clone();
         let (tx, out) = mpsc::channel(1);
         let hub = self.hub.clone();
         tokio::spawn(async move {
             loop {
                 // The newest version only: a slow reader skips what it missed.
-                let reply = Self::weights_reply(&rx.borrow_and_update());
+                let reply = Self::watch_reply(&rx.borrow_and_update(), by_file);
                 if tx.send(Ok(reply)).await.is_err() {
                     break;
                 }

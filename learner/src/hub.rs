@@ -6,7 +6,7 @@ use saver_core::env::EnvLayout;
 use saver_core::link::{Assignment, LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
@@ -173,17 +173,24 @@ impl Hub {
         self.lock().actors.clone()
     }
 
-    /// Blocks until at least `n` actors are registered or the hub closes.
-    pub fn wait_for_actors(&self, n: usize) -> Result<(), LinkError> {
+    /// Blocks until at least `n` actors are registered, the hub closes or `stop` is set.
+    pub fn wait_for_actors(&self, n: usize, stop: &AtomicBool) -> Result<(), LinkError> {
         let mut s = self.lock();
         loop {
             if let Some(why) = &s.closed {
                 return Err(why.clone());
             }
+            if stop.load(Ordering::Relaxed) {
+                return Err(LinkError::Closed("the learner is stopping".into()));
+            }
             if s.actors.len() >= n {
                 return Ok(());
             }
-            s = self.changed.wait(s).unwrap_or_else(|e| e.into_inner());
+            s = self
+                .changed
+                .wait_timeout(s, Duration::from_millis(50))
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
         }
     }
 

@@ -135,7 +135,7 @@ impl Trainer {
         let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names(), resumed)
             .map_err(|e| io("creating metrics.csv", e))?;
         let config = self.hub.config().clone();
-        let wait = self.hub.wait_for_actors(config.actors as usize);
+        let wait = self.hub.wait_for_actors(config.actors as usize, &self.stop);
         let mut window = EpisodeWindow::default();
         let mut c = opts.start;
         // Sync mode: the actors' states after the last round, saved with the weights

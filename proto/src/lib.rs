@@ -4,6 +4,7 @@
 //! them with the safetensors package alone.
 
 pub mod access;
+pub mod weights_dir;
 pub use access::{endpoint, incoming, server, Access, AddToken, CheckToken, ClientAccess};
 
 /// Generated gRPC messages, clients and servers (package `saver.v1`).
@@ -116,11 +117,10 @@ pub fn decode(bytes: &[u8]) -> Result<(Vec<NamedTensor>, HashMap<String, String>
                 dtype: format!("{:?}", view.dtype()),
             });
         }
-        let data: Vec<f32> = view
-            .data()
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
+        let raw = view.data();
+        let n = raw.len() / 4;
+        let mut data = vec![0f32; n];
+        f32_bytes_mut(&mut data).copy_from_slice(&raw[..n * 4]);
         out.push(NamedTensor {
             name,
             shape: view.shape().to_vec(),
@@ -142,6 +142,13 @@ fn f32_bytes(data: &[f32]) -> &[u8] {
     compile_error!("saver-proto assumes a little-endian target");
     // SAFETY: f32 has no padding and any byte pattern is a valid u8.
     unsafe { std::slice::from_raw_parts(data.as_ptr().cast::<u8>(), std::mem::size_of_val(data)) }
+}
+
+fn f32_bytes_mut(data: &mut [f32]) -> &mut [u8] {
+    // SAFETY: as in `f32_bytes`; every byte pattern is also a valid f32.
+    unsafe {
+        std::slice::from_raw_parts_mut(data.as_mut_ptr().cast::<u8>(), std::mem::size_of_val(data))
+    }
 }
 
 #[cfg(test)]

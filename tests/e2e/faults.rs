@@ -29,7 +29,8 @@ fn every_learner_call_needs_the_token() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let access = Access::token(CheckToken::new(Some("tok-1")).unwrap());
-    let url = saver::services::serve_hub_on_loopback(&rt, learner.hub.clone(), access).unwrap();
+    let url =
+        saver::services::serve_hub_on_loopback(&rt, learner.hub.clone(), access, None).unwrap();
 
     let status_with = |token: Option<&str>| {
         rt.block_on(async {

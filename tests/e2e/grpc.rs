@@ -10,6 +10,7 @@ use saver_core::env::{EnvKind, EnvSpec};
 use saver_core::link::{LearnerLink, Registration};
 use saver_core::nets::Pcpn;
 use saver_learner::grpc::{serve, LearnerService};
+use saver_proto::weights_dir::WeightsDir;
 use saver_proto::NamedTensor;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -21,15 +22,18 @@ fn checkpoint(path: &Path) -> Vec<NamedTensor> {
         .0
 }
 
-/// Runs `config` with its actors as gRPC clients of a learner served on 127.0.0.1:0.
+/// Runs `config` with its actors as gRPC clients of a learner served on 127.0.0.1:0
+/// (writing its weights to `weights_dir` if given); also returns how many versions the
+/// actors read from the learner's files.
 fn run_over_grpc(
     config: &RunConfig,
     out: &Path,
     pcpn: Option<Pcpn>,
-) -> saver_learner::TrainerOutcome {
+    weights_dir: Option<WeightsDir>,
+) -> (saver_learner::TrainerOutcome, u64) {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(config, out, pcpn, Arc::new(AtomicBool::new(false)), 0).unwrap();
-    let (service, _status) = LearnerService::new(learner.hub.clone());
+    let (service, _status) = LearnerService::new(learner.hub.clone(), weights_dir);
     let listener = rt
         .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
         .unwrap();
@@ -49,23 +53,24 @@ fn run_over_grpc(
                     session: 1000 + i as u64,
                     n_envs,
                 };
-                run_actor(&mut link, &reg, &AtomicBool::new(false)).unwrap()
+                run_actor(&mut link, &reg, &AtomicBool::new(false)).unwrap();
+                link.weights_read_from_files()
             })
         })
         .collect();
     let (_, outcome) = follow(learner, config, false, |_| {}).unwrap();
-    for a in actors {
-        a.join().unwrap();
-    }
+    let from_files = actors.into_iter().map(|a| a.join().unwrap()).sum();
     let _ = stop_tx.send(());
     rt.block_on(server).unwrap().unwrap();
-    outcome
+    (outcome, from_files)
 }
 
 #[test]
 fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
     // SAVER (with a fixed random PCPN) on angle d = 2 and A2C on select d = 3:
-    // 4 actors, 20 updates each way.
+    // 4 actors, 20 updates each way; A2C's actors read the weights from the learner's
+    // files, with a thread deleting them now and then (a reader that misses one asks
+    // for the bytes), SAVER's take them over the stream.
     let saver = RunConfig::paper(
         EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::Saver,
@@ -89,8 +94,45 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
             false,
         )
         .unwrap();
-        let remote = run_over_grpc(&config, &dir.join("grpc"), pcpn);
+        let files = config.algo == Algo::A2c;
+        let wdir = dir.join("weights");
+        let done = Arc::new(AtomicBool::new(false));
+        let deleter = files.then(|| {
+            let (wdir, done) = (wdir.clone(), done.clone());
+            std::thread::spawn(move || {
+                let mut deleted = 0;
+                while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                    std::thread::sleep(std::time::Duration::from_millis(7));
+                    if let Ok(files) = std::fs::read_dir(&wdir) {
+                        let f = files.flatten().find(|f| f.file_name() != "id");
+                        deleted += f
+                            .and_then(|f| std::fs::remove_file(f.path()).ok())
+                            .is_some() as u32;
+                    }
+                }
+                deleted
+            })
+        });
+        let weights_dir = files.then(|| WeightsDir::create(&wdir).unwrap());
+        let (remote, from_files) = run_over_grpc(&config, &dir.join("grpc"), pcpn, weights_dir);
+        done.store(true, std::sync::atomic::Ordering::Relaxed);
+        let deleted = deleter.map(|d| d.join().unwrap());
         assert_eq!((embedded.version, remote.version), (20, 20));
+        if files {
+            // 4 actors x 21 versions (0..=20) at most, less those deleted first.
+            assert!(
+                from_files > 0 && from_files <= 84,
+                "{from_files} read, {deleted:?} deleted"
+            );
+            // The learner's weights thread removes it once it sees the end.
+            let gone = (0..500).any(|_| {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+                !wdir.exists()
+            });
+            assert!(gone, "the learner removes its weights directory");
+        } else {
+            assert_eq!(from_files, 0);
+        }
         // Learner state only: the embedded run also saves its in-process actors.
         let learner_part = |p| -> Vec<_> {
             checkpoint(p)
@@ -120,7 +162,8 @@ fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
-    let url = saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default()).unwrap();
+    let url =
+        saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
     let spawn_actor = |i: u64| {
         let url = url.clone();
         std::thread::spawn(move || {

@@ -140,7 +140,8 @@ fn a_hundred_thousand_hostile_rollouts_are_refused_and_change_nothing() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
-    let url = saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default()).unwrap();
+    let url =
+        saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
 
     let (refused, weights_after_one) = rt.block_on(async {
         let mut client = LearnerClient::connect(url.clone())

@@ -390,3 +390,40 @@ fn a_run_stopped_with_sigterm_and_resumed_ends_bit_identical() {
     assert_tensors_in(&a, &b);
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn a_learner_with_no_actors_stops_on_sigterm_and_removes_its_weights_dir() {
+    let dir = temp_dir("sigterm-idle");
+    let wdir = dir.join("weights");
+    let (wdir_s, out_s) = (
+        wdir.display().to_string(),
+        dir.join("run").display().to_string(),
+    );
+    let (mut learner, _url) = serve(&[
+        "learner",
+        "--listen",
+        "127.0.0.1:0",
+        "--steps",
+        "1000",
+        "--out",
+        &out_s,
+        "--weights-dir",
+        &wdir_s,
+    ]);
+    // Version 0 is written before any actor comes.
+    let v0 = wdir.join("v0.safetensors");
+    assert!((0..500).any(|_| {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        v0.exists()
+    }));
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe { libc::kill(learner.0.id() as i32, libc::SIGTERM) };
+    // Waiting for its 16 actors must not keep it from stopping (it used to).
+    let status = (0..1000).find_map(|_| {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        learner.0.try_wait().unwrap()
+    });
+    assert!(status.is_some_and(|s| s.success()), "{status:?}");
+    assert!(!wdir.exists(), "the weights directory is removed");
+    std::fs::remove_dir_all(dir).ok();
+}

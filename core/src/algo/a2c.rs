@@ -43,12 +43,7 @@ impl A2c {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
         let agent = Agent::new(&layout, config.head, true, &mut rng, dev)?;
-        let opt = Optimizer::with_clip(
-            agent.params().vars.clone(),
-            config.optimizer,
-            config.lr,
-            config.grad_clip,
-        )?;
+        let opt = Optimizer::for_run(agent.params().vars.clone(), config)?;
         Ok(Self {
             agent,
             opt,

@@ -7,7 +7,7 @@
 
 use super::saver_grad::{policy_grads, PcpnGrad};
 use super::{check_finite, matrix, policy_diagnostics, Algorithm, UpdateStats};
-use crate::config::{RunConfig, SaverConfig};
+use crate::config::{RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
 use crate::loss::{monotonic_penalty, quantile_loss};
@@ -115,6 +115,13 @@ pub fn saver_actor_losses(
     Ok(SaverLosses { actor, mon })
 }
 
+/// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim]: a wall
+/// that keeps a tanh-bounded mean where tanh still passes gradient back.
+pub fn mu_raw_penalty(raw: &Tensor, w: f64) -> Result<Tensor> {
+    let over = (raw.abs()? - MU_RAW_LIMIT)?.relu()?;
+    Ok((over.sqr()?.sum_all()? * (w / raw.dim(0)? as f64))?)
+}
+
 impl Saver {
     /// A fresh agent and critic initialised from the run seed, around a frozen PCPN.
     pub fn new(config: &RunConfig, pcpn: Pcpn, dev: &Device) -> Result<Self> {
@@ -124,7 +131,7 @@ impl Saver {
         let critic = Critic::new(&layout, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
-        let opt = Optimizer::with_clip(vars, config.optimizer, config.lr, config.grad_clip)?;
+        let opt = Optimizer::for_run(vars, config)?;
         Ok(Self {
             agent,
             critic,
@@ -240,7 +247,11 @@ impl Algorithm for Saver {
                 (a, m, (l.actor + l.mon)?)
             }
         };
-        let loss = (agent_loss + &critic_loss)?;
+        let mut loss = (agent_loss + &critic_loss)?;
+        if self.cfg.mu_raw_penalty > 0.0 {
+            let raw = out.mu_raw.narrow(0, 0, b)?;
+            loss = (loss + mu_raw_penalty(&raw, self.cfg.mu_raw_penalty)?)?;
+        }
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;

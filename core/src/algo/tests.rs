@@ -87,6 +87,7 @@ impl Fixture {
                 lambda_critic: 0.5,
                 adv_norm: false,
                 adv_norm_joint: false,
+                mu_raw_penalty: 0.0,
             },
         };
         let mu: Vec<f64> = uniform(&mut rng, b * l.mu_dim(), -1.0, 1.0)
@@ -283,6 +284,7 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
             lambda_critic: 0.5,
             adv_norm: false,
             adv_norm_joint: false,
+            mu_raw_penalty: 0.0,
         };
         let pcpn = random_pcpn(&l, DType::F32);
         let obs = uniform(&mut rng, b * l.obs_dim, -1.0, 1.0);
@@ -356,5 +358,26 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
             "{spec}: L_mon {} vs {rm}",
             g.mon_loss
         );
+    }
+}
+
+#[test]
+fn mu_raw_penalty_is_a_quadratic_wall_beyond_the_limit() {
+    // raw = [[3, -0.5], [-2.5, 1]], limit 2: over = [[1, 0], [0.5, 0]];
+    // w = 0.1, B = 2: 0.1 · (1 + 0.25) / 2 = 0.0625.
+    // d/draw = 2·w·over·sign(raw)/B = [[0.1, 0], [-0.05, 0]].
+    let raw = Var::from_slice(&[3f32, -0.5, -2.5, 1.0], (2, 2), &Device::Cpu).unwrap();
+    let p = super::saver::mu_raw_penalty(raw.as_tensor(), 0.1).unwrap();
+    assert!((p.to_scalar::<f32>().unwrap() - 0.0625).abs() < 1e-7);
+    let g = p.backward().unwrap();
+    let g: Vec<f32> = g
+        .get(raw.as_tensor())
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1()
+        .unwrap();
+    for (got, want) in g.iter().zip([0.1f32, 0.0, -0.05, 0.0]) {
+        assert!((got - want).abs() < 1e-7, "{g:?}");
     }
 }

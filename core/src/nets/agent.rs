@@ -72,6 +72,8 @@ pub struct Agent {
 pub struct AgentOut {
     /// [N, mu_dim].
     pub mu: Tensor,
+    /// [N, mu_dim]: the mean head's output before the bound (equal to `mu` unbounded).
+    pub mu_raw: Tensor,
     /// [N, log_std_dim] (the same row repeated).
     pub log_std: Tensor,
     /// [N] value estimates (A2C only).
@@ -116,10 +118,11 @@ impl Agent {
     pub fn forward(&self, obs: &Tensor) -> candle_core::Result<AgentOut> {
         let n = obs.dim(0)?;
         let h = mlp_forward(&self.trunk, obs, true)?;
-        let mut mu = self.mu.forward(&h)?;
-        if let Some(b) = self.head.mu_bound {
-            mu = (mu.tanh()? * b)?;
-        }
+        let mu_raw = self.mu.forward(&h)?;
+        let mu = match self.head.mu_bound {
+            Some(b) => (mu_raw.tanh()? * b)?,
+            None => mu_raw.clone(),
+        };
         let mut log_std = self.log_std.clone();
         if let Some((lo, hi)) = self.head.log_std_bounds {
             log_std = log_std.clamp(lo as f32, hi as f32)?;
@@ -129,7 +132,12 @@ impl Agent {
             Some(v) => Some(v.forward(&h)?.squeeze(1)?),
             None => None,
         };
-        Ok(AgentOut { mu, log_std, value })
+        Ok(AgentOut {
+            mu,
+            mu_raw,
+            log_std,
+            value,
+        })
     }
 
     /// The trainable variables.
