@@ -56,6 +56,9 @@ until v=$(field version) && a=$(field actors) && [ -n "$v" ] && [ "$v" -ge 50 ] 
   sleep 2
 done
 echo "   learner at version $v with $a actors"
+n=$(compose logs actor 2>/dev/null | grep -c "reading weights from the learner's files" || true)
+[ "$n" -ge 16 ] || { echo "error: $n of 16 actors read the shared weights volume" >&2; exit 1; }
+echo "   $n actor registrations read the weights from the shared volume"
 "$bin" weights --learner "$url" --out "$tmp/weights.safetensors"
 [ -s "$tmp/weights.safetensors" ] || { echo "error: no weights written" >&2; exit 1; }
 echo "== compose test passed"
