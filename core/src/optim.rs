@@ -129,11 +129,12 @@ impl Optimizer {
     /// The optimiser a run's config asks for: its kind, learning rate, gradient clip
     /// and, with `lr_decay`, a rate that falls linearly to zero over the run's updates.
     pub fn for_run(vars: Vec<(String, Var)>, config: &RunConfig) -> Result<Self> {
-        let mut opt = Self::with_clip(vars, config.optimizer, config.lr, config.grad_clip)?;
-        if config.lr_decay {
-            opt.decay_over = Some(config.steps.div_ceil(config.batch_transitions()));
-        }
-        Ok(opt)
+        let opt = Self::with_clip(vars, config.optimizer, config.lr, config.grad_clip)?;
+        Ok(if config.lr_decay {
+            opt.decaying_over(config.steps.div_ceil(config.batch_transitions()))
+        } else {
+            opt
+        })
     }
 
     /// Makes the learning rate fall linearly from its initial value to zero over
@@ -272,19 +273,20 @@ mod tests {
     use super::*;
     use candle_core::Device;
 
+    /// One weight θ0 and an optimiser over it.
+    fn one_weight(theta0: f32, config: OptimizerConfig, lr: f64) -> (Var, Optimizer) {
+        let v = Var::from_slice(&[theta0], 1, &Device::Cpu).unwrap();
+        let opt = Optimizer::new(vec![("w".into(), v.clone())], config, lr).unwrap();
+        (v, opt)
+    }
+
     #[test]
     fn rmsprop_two_tf1_steps_by_hand() {
         // θ0 = 1, lr = 0.01, ρ = 0.9, ε = 1e-10, ms0 = 1, loss = 3·θ so g = 3 at every step:
         //   step 1: ms1 = 1 + (9 − 1)·0.1 = 1.8;   θ1 = 1 − 0.01·3/√1.8 = 0.977639320
         //   step 2: ms2 = 1.8 + (9 − 1.8)·0.1 = 2.52; θ2 = θ1 − 0.03/√2.52 = 0.958740717
         // (python: 1 - 0.03/1.8**0.5 - 0.03/2.52**0.5)
-        let v = Var::from_slice(&[1f32], 1, &Device::Cpu).unwrap();
-        let mut opt = Optimizer::new(
-            vec![("w".into(), v.clone())],
-            OptimizerConfig::RMSPROP_TF1,
-            0.01,
-        )
-        .unwrap();
+        let (v, mut opt) = one_weight(1f32, OptimizerConfig::RMSPROP_TF1, 0.01);
         let mut seen = vec![];
         for _ in 0..2 {
             let loss = (v.as_tensor() * 3.0).unwrap().sum_all().unwrap();
@@ -305,13 +307,7 @@ mod tests {
         // The SPEC's observation: with ms → g² (after many steps on g = 1e-4) the step is
         // lr·g/√(g²+ε) ≈ lr. After 200 steps ms = 1·0.9^200 + g²·(1 − 0.9^200) ≈ 1e-8,
         // so step 201 moves θ by 0.01·1e-4/√(7.06e-10 + 1e-8 + 1e-10) ≈ 9.63e-3.
-        let v = Var::from_slice(&[0f32], 1, &Device::Cpu).unwrap();
-        let mut opt = Optimizer::new(
-            vec![("w".into(), v.clone())],
-            OptimizerConfig::RMSPROP_TF1,
-            0.01,
-        )
-        .unwrap();
+        let (v, mut opt) = one_weight(0f32, OptimizerConfig::RMSPROP_TF1, 0.01);
         let mut before = 0.0;
         for _ in 0..201 {
             before = v.as_tensor().to_vec1::<f32>().unwrap()[0];
@@ -326,13 +322,7 @@ mod tests {
     fn adam_first_step_is_lr_sized() {
         // TF1 Adam, t = 1: m = 0.1·g, v = 0.001·g², lr_t = lr·√0.001/0.1;
         // step = lr_t·m/(√v + ε) = lr·g/(|g| + ε/√0.001) ≈ lr for g = 3: 0.001·3/(3+3.16e-7).
-        let v = Var::from_slice(&[1f32], 1, &Device::Cpu).unwrap();
-        let mut opt = Optimizer::new(
-            vec![("w".into(), v.clone())],
-            OptimizerConfig::ADAM_TF1,
-            0.001,
-        )
-        .unwrap();
+        let (v, mut opt) = one_weight(1f32, OptimizerConfig::ADAM_TF1, 0.001);
         let loss = (v.as_tensor() * 3.0).unwrap().sum_all().unwrap();
         opt.step(&loss.backward().unwrap()).unwrap();
         let theta = v.as_tensor().to_vec1::<f32>().unwrap()[0];
@@ -344,14 +334,8 @@ mod tests {
         // Adam with a constant gradient takes steps of ≈ lr (bias-corrected m/√v = 1,
         // see above). Over 4 steps the rates are 0.01·(1, 0.75, 0.5, 0.25), then 0:
         // θ = 1 − 0.01·(1 + 0.75 + 0.5 + 0.25) = 0.975 after 4 steps and after 6.
-        let v = Var::from_slice(&[1f32], 1, &Device::Cpu).unwrap();
-        let mut opt = Optimizer::new(
-            vec![("w".into(), v.clone())],
-            OptimizerConfig::ADAM_TF1,
-            0.01,
-        )
-        .unwrap()
-        .decaying_over(4);
+        let (v, opt) = one_weight(1f32, OptimizerConfig::ADAM_TF1, 0.01);
+        let mut opt = opt.decaying_over(4);
         let mut seen = Vec::new();
         for _ in 0..6 {
             seen.push(opt.current_lr());

@@ -160,16 +160,11 @@ impl LearnerService {
                     next = w.version + 1;
                 }
                 // Publish the very last version too (the hub may close right after it).
+                // This thread is the only sender, so no one else can have sent it.
                 let last = bridge_hub.latest();
                 if last.version > tx.borrow().version {
                     if let Some(e) = publishable(&last, &mut dir) {
-                        tx.send_if_modified(|cur| {
-                            let newer = e.version > cur.version;
-                            if newer {
-                                *cur = e.clone();
-                            }
-                            newer
-                        });
+                        let _ = tx.send(e);
                     }
                 }
                 // `dir` drops here and removes its files: a reader that misses the

@@ -80,15 +80,7 @@ impl Fixture {
             advantage: f64t(uniform(&mut rng, b * d, -1.0, 1.0), &[b, d]),
             tau: tau.to_dtype(DType::F64).unwrap(),
             cos: cos.to_dtype(DType::F64).unwrap(),
-            cfg: crate::config::SaverConfig {
-                quantiles: k,
-                kappa,
-                lambda_mon: 1.0,
-                lambda_critic: 0.5,
-                adv_norm: false,
-                adv_norm_joint: false,
-                mu_raw_penalty: 0.0,
-            },
+            cfg: loss_config(k, kappa),
         };
         let mu: Vec<f64> = uniform(&mut rng, b * l.mu_dim(), -1.0, 1.0)
             .into_iter()
@@ -277,15 +269,7 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
         let (k, d) = (32, l.aligned_dim);
         let dev = Device::Cpu;
         let mut rng = rng_for(31, d as u64);
-        let cfg = crate::config::SaverConfig {
-            quantiles: k,
-            kappa,
-            lambda_mon: 1.0,
-            lambda_critic: 0.5,
-            adv_norm: false,
-            adv_norm_joint: false,
-            mu_raw_penalty: 0.0,
-        };
+        let cfg = loss_config(k, kappa);
         let pcpn = random_pcpn(&l, DType::F32);
         let obs = uniform(&mut rng, b * l.obs_dim, -1.0, 1.0);
         let mu = uniform(&mut rng, b * l.mu_dim(), -1.0, 1.0);
@@ -379,5 +363,18 @@ fn mu_raw_penalty_is_a_quadratic_wall_beyond_the_limit() {
         .unwrap();
     for (got, want) in g.iter().zip([0.1f32, 0.0, -0.05, 0.0]) {
         assert!((got - want).abs() < 1e-7, "{g:?}");
+    }
+}
+
+/// SAVER's loss constants as the paper has them, with K = `k` and Huber κ = `kappa`.
+fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
+    crate::config::SaverConfig {
+        quantiles: k,
+        kappa,
+        lambda_mon: 1.0,
+        lambda_critic: 0.5,
+        adv_norm: false,
+        adv_norm_joint: false,
+        mu_raw_penalty: 0.0,
     }
 }
