@@ -18,12 +18,15 @@ use tokio_stream::StreamExt;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 
+/// The generated Learner client with the token interceptor.
+type Client = LearnerClient<InterceptedService<Channel, AddToken>>;
+
 /// A connection to a learner.
 pub struct GrpcLink {
     /// Drives the streams (one worker thread).
     rt: tokio::runtime::Runtime,
     /// The generated client (adds the token to every call).
-    client: LearnerClient<InterceptedService<Channel, AddToken>>,
+    client: Client,
     /// Rollouts into the open StreamRollouts call.
     rollouts: Option<mpsc::Sender<pb::Rollout>>,
     /// Newest weights from WatchWeights, decoded.
@@ -82,6 +85,34 @@ fn read_weights_file(dir: &Path, w: &pb::Weights) -> Result<PolicyWeights, Strin
         version: w.version,
         tensors,
     })
+}
+
+/// The weights a WatchWeights message stands for: read from the file it names in
+/// `files` (counted in `from_files`), or decoded from its bytes; a named file that is
+/// gone (this reader fell behind) or unreadable is asked for with GetWeights.
+async fn resolve(
+    w: pb::Weights,
+    files: Option<&Path>,
+    client: &mut Client,
+    from_files: &AtomicU64,
+) -> Result<PolicyWeights, LinkError> {
+    let Some(dir) = files.filter(|_| !w.file.is_empty()) else {
+        return decode_weights(&w);
+    };
+    match read_weights_file(dir, &w) {
+        Ok(p) => {
+            from_files.fetch_add(1, Ordering::Relaxed);
+            Ok(p)
+        }
+        Err(e) => {
+            tracing::debug!("weights file: {e}; asking for the bytes");
+            let req = pb::WeightsRequest {
+                min_version: w.version,
+            };
+            let bytes = client.get_weights(req).await.map_err(status_error)?;
+            decode_weights(&bytes.into_inner())
+        }
+    }
 }
 
 impl GrpcLink {
@@ -228,29 +259,11 @@ impl GrpcLink {
         self.rt.spawn(async move {
             let mut stream = stream;
             while let Some(w) = stream.next().await {
-                let w = match (w, &files) {
-                    (Ok(w), Some(dir)) if !w.file.is_empty() => {
-                        match read_weights_file(dir, &w) {
-                            Ok(p) => {
-                                from_files.fetch_add(1, Ordering::Relaxed);
-                                if wtx.send(Some(Arc::new(p))).is_err() {
-                                    return;
-                                }
-                                continue;
-                            }
-                            // Gone (this reader fell behind) or unreadable: the bytes.
-                            Err(e) => {
-                                tracing::debug!("weights file: {e}; asking for the bytes");
-                                let req = pb::WeightsRequest {
-                                    min_version: w.version,
-                                };
-                                client.get_weights(req).await.map(|r| r.into_inner())
-                            }
-                        }
-                    }
-                    (w, _) => w,
+                let got = match w {
+                    Ok(w) => resolve(w, files.as_deref(), &mut client, &from_files).await,
+                    Err(s) => Err(status_error(s)),
                 };
-                match w.map_err(status_error).and_then(|w| decode_weights(&w)) {
+                match got {
                     Ok(w) => {
                         if wtx.send(Some(Arc::new(w))).is_err() {
                             return;
