@@ -114,6 +114,8 @@ fn synthetic_batch(l: &EnvLayout, seed: u64) -> Batch {
         state_delta: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
         vector_reward: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
         done: (0..b).map(|i| i % 97 == 0).collect(),
+        timeouts: vec![],
+        timeout_obs: vec![],
         steps: b as u64,
     }
 }

@@ -147,6 +147,8 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                     state_delta: vec![0.01; n * layout.aligned_dim],
                     vector_reward: vec![0.01; n * layout.aligned_dim],
                     done: vec![false; n],
+                    timeouts: vec![],
+                    timeout_obs: vec![],
                     episodes: vec![],
                     actor_state: None,
                 };

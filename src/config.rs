@@ -109,6 +109,10 @@ pub struct RunArgs {
     /// Let the learning rate fall linearly to zero over the run's updates.
     #[arg(long)]
     pub lr_decay: Option<bool>,
+    /// At the episode step limit, bootstrap the return from the value of the state
+    /// reached (the paper: the limit is terminal).
+    #[arg(long)]
+    pub bootstrap_timeout: Option<bool>,
     /// SAVER: weight of the penalty on the mean head's raw output beyond ±2 (keeps
     /// tanh(raw) out of saturation; 0: off).
     #[arg(long)]
@@ -146,6 +150,7 @@ struct FileConfig {
     adv_norm_joint: Option<bool>,
     grad_clip: Option<f64>,
     lr_decay: Option<bool>,
+    bootstrap_timeout: Option<bool>,
     mu_raw_penalty: Option<f64>,
 }
 
@@ -268,6 +273,9 @@ impl RunArgs {
         if let Some(v) = pick!(lr_decay) {
             c.lr_decay = v;
         }
+        if let Some(v) = pick!(bootstrap_timeout) {
+            c.bootstrap_timeout = v;
+        }
         if let Some(v) = pick!(mu_raw_penalty) {
             c.saver.mu_raw_penalty = v;
         }
@@ -323,6 +331,7 @@ pub fn to_toml(c: &RunConfig) -> String {
         s.push_str(&format!("grad_clip = {g:?}\n"));
     }
     s.push_str(&format!("lr_decay = {}\n", c.lr_decay));
+    s.push_str(&format!("bootstrap_timeout = {}\n", c.bootstrap_timeout));
     s.push_str(&format!("mu_raw_penalty = {:?}\n", c.saver.mu_raw_penalty));
     s
 }
@@ -347,6 +356,7 @@ mod tests {
             adv_norm_joint: Some(true),
             grad_clip: Some(0.5),
             lr_decay: Some(true),
+            bootstrap_timeout: Some(true),
             mu_raw_penalty: Some(0.5),
             ..Default::default()
         };

@@ -8,7 +8,7 @@ use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
 use saver_proto::weights_dir::{is_version_file, shares};
 use saver_proto::{AddToken, ClientAccess};
-use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
+use saver_proto::{ACKS_KEY, ACKS_REFUSALS, ACTOR_ID_KEY, SESSION_KEY};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -223,6 +223,11 @@ impl GrpcLink {
         let md = req.metadata_mut();
         md.insert(ACTOR_ID_KEY, actor_id.into());
         md.insert(SESSION_KEY, session.into());
+        // Acceptances would only wake this process; refusals are logged.
+        md.insert(
+            ACKS_KEY,
+            tonic::metadata::MetadataValue::from_static(ACKS_REFUSALS),
+        );
         let acks = self
             .rt
             .block_on(client.stream_rollouts(req))

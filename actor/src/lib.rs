@@ -107,6 +107,8 @@ impl Actor {
             state_delta: Vec::with_capacity(e * n * l.aligned_dim),
             vector_reward: Vec::with_capacity(e * n * l.aligned_dim),
             done: Vec::with_capacity(e * n),
+            timeouts: Vec::new(),
+            timeout_obs: Vec::new(),
             episodes: Vec::new(),
             actor_state: None,
         };
@@ -114,7 +116,7 @@ impl Actor {
         let mut act = Action::default();
         // Env-major layout: all n steps of env 0, then env 1, … (envs are independent).
         for i in 0..e {
-            for _ in 0..n {
+            for t in 0..n {
                 r.obs.extend_from_slice(&self.obs[i]);
                 policy.act(&self.obs[i], &mut self.rng, &mut act);
                 let step = self.envs[i].step(&act.action, &mut self.obs[i]);
@@ -127,6 +129,10 @@ impl Actor {
                 let run = &mut self.running[i];
                 run.0 += 1;
                 run.1 += step.vector_reward.iter().sum::<f32>();
+                if step.timeout {
+                    r.timeouts.push((i * n + t) as u32);
+                    r.timeout_obs.extend_from_slice(&self.obs[i]);
+                }
                 if step.done() {
                     r.episodes.push(Episode {
                         actor_id: self.id,

@@ -152,6 +152,10 @@ pub struct RunConfig {
     pub head: HeadConfig,
     /// Episode step limit (hitting it is terminal, as in the paper's code).
     pub max_episode_steps: u32,
+    /// At the step limit, bootstrap the return from the value of the observation
+    /// reached, instead of treating the limit as terminal (the paper's code).
+    #[serde(default)]
+    pub bootstrap_timeout: bool,
     /// A2C value-loss weight.
     pub value_coef: f64,
     /// SAVER constants.
@@ -208,6 +212,7 @@ impl RunConfig {
             grad_clip: None,
             head: HeadConfig::FAITHFUL,
             max_episode_steps: 1000,
+            bootstrap_timeout: false,
             value_coef: 0.5,
             saver: SaverConfig {
                 quantiles: 32,

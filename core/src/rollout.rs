@@ -49,6 +49,12 @@ pub struct Rollout {
     pub vector_reward: Vec<f32>,
     /// [E, n]: the episode ended at this step (success or timeout).
     pub done: Vec<bool>,
+    /// Steps (indices into [E, n], ascending) whose episode ended at the step limit;
+    /// empty from a peer that does not report them (every end is then terminal).
+    pub timeouts: Vec<u32>,
+    /// [timeouts, obs_dim]: the observation each of those steps reached (the envs
+    /// are reset after it, so `obs` does not hold it): what a timeout bootstraps from.
+    pub timeout_obs: Vec<f32>,
     /// Episodes that finished in this rollout.
     pub episodes: Vec<Episode>,
     /// The actor's state right after this rollout (in-process actors only; it never
@@ -162,6 +168,31 @@ impl Rollout {
                 e * n
             )));
         }
+        self.validate_timeouts(layout.obs_dim)
+    }
+
+    fn validate_timeouts(&self, obs_dim: usize) -> Result<()> {
+        let mut prev = None;
+        for &i in &self.timeouts {
+            if !self.done.get(i as usize).copied().unwrap_or(false) || prev >= Some(i) {
+                return Err(CoreError::Data(format!(
+                    "rollout timeouts {:?} are not ascending steps that end an episode",
+                    self.timeouts
+                )));
+            }
+            prev = Some(i);
+        }
+        let want = self.timeouts.len() * obs_dim;
+        if self.timeout_obs.len() != want {
+            return Err(CoreError::Data(format!(
+                "rollout timeout_obs has {} values, expected {want} for {} timeouts",
+                self.timeout_obs.len(),
+                self.timeouts.len()
+            )));
+        }
+        if self.timeout_obs.iter().any(|x| !x.is_finite()) {
+            return Err(CoreError::Data("rollout timeout_obs is not finite".into()));
+        }
         Ok(())
     }
 }
@@ -185,6 +216,10 @@ pub struct Batch {
     pub vector_reward: Vec<f32>,
     /// [T·n].
     pub done: Vec<bool>,
+    /// Transitions (indices into T·n, ascending) whose episode hit the step limit.
+    pub timeouts: Vec<usize>,
+    /// [timeouts, obs_dim]: the final observation of each.
+    pub timeout_obs: Vec<f32>,
     /// Total env steps in the batch (T·n).
     pub steps: u64,
 }
@@ -207,6 +242,8 @@ impl Batch {
             state_delta: vec![],
             vector_reward: vec![],
             done: vec![],
+            timeouts: vec![],
+            timeout_obs: vec![],
             steps: 0,
         };
         for r in rollouts {
@@ -225,6 +262,10 @@ impl Batch {
             b.state_delta.extend_from_slice(&r.state_delta);
             b.vector_reward.extend_from_slice(&r.vector_reward);
             b.done.extend_from_slice(&r.done);
+            let offset = b.n_traj * n;
+            b.timeouts
+                .extend(r.timeouts.iter().map(|&i| offset + i as usize));
+            b.timeout_obs.extend_from_slice(&r.timeout_obs);
             b.n_traj += r.n_envs;
         }
         b.steps = (b.n_traj * n) as u64;
@@ -239,6 +280,16 @@ impl Batch {
     /// True when the batch holds no transitions.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+
+    /// The `ends` of [`crate::returns::n_step_returns`] ([T·n, c]): `values` ([timeouts,
+    /// c], the value of each timeout's final observation) at the timeouts, 0 elsewhere.
+    pub fn timeout_ends(&self, values: &[f32], c: usize) -> Vec<f32> {
+        let mut ends = vec![0.0; self.len() * c];
+        for (&i, v) in self.timeouts.iter().zip(values.chunks_exact(c)) {
+            ends[i * c..(i + 1) * c].copy_from_slice(v);
+        }
+        ends
     }
 
     /// The scalar reward of each transition: the sum of its vector reward.

@@ -56,6 +56,8 @@ impl From<&Rollout> for pb::Rollout {
             state_delta: r.state_delta.clone(),
             vector_reward: r.vector_reward.clone(),
             done: r.done.clone(),
+            timeouts: r.timeouts.clone(),
+            timeout_obs: r.timeout_obs.clone(),
             episodes: r
                 .episodes
                 .iter()
@@ -79,7 +81,9 @@ impl TryFrom<pb::Rollout> for Rollout {
             + r.actions.len()
             + r.state_delta.len()
             + r.vector_reward.len()
-            + r.done.len();
+            + r.done.len()
+            + r.timeouts.len()
+            + r.timeout_obs.len();
         if total > MAX_ROLLOUT_VALUES {
             return Err(CoreError::TooLarge(format!(
                 "rollout carries {total} values, more than the {MAX_ROLLOUT_VALUES} allowed"
@@ -107,6 +111,8 @@ impl TryFrom<pb::Rollout> for Rollout {
             state_delta: r.state_delta,
             vector_reward: r.vector_reward,
             done: r.done,
+            timeouts: r.timeouts,
+            timeout_obs: r.timeout_obs,
             actor_state: None,
             episodes: r
                 .episodes

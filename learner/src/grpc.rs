@@ -92,7 +92,7 @@ pub struct TrainerStatus {
     pub finished: bool,
 }
 
-use saver_proto::{ACTOR_ID_KEY, SESSION_KEY};
+use saver_proto::{ACKS_KEY, ACKS_REFUSALS, ACTOR_ID_KEY, SESSION_KEY};
 
 fn actor_metadata(m: &tonic::metadata::MetadataMap) -> Option<(u32, u64)> {
     let get = |k: &str| m.get(k)?.to_str().ok()?.parse::<u64>().ok();
@@ -260,6 +260,8 @@ impl Learner for LearnerService {
         // The actor names itself in metadata, so that it leaves the rounds when its
         // stream closes (a sync round would otherwise wait for it forever).
         let owner = actor_metadata(req.metadata());
+        let refusals_only =
+            req.metadata().get(ACKS_KEY).and_then(|v| v.to_str().ok()) == Some(ACKS_REFUSALS);
         let mut inbound = req.into_inner();
         let (tx, rx) = mpsc::channel(32);
         let hub = self.hub.clone();
@@ -300,6 +302,7 @@ impl Learner for LearnerService {
                     },
                 };
                 let reply = match outcome {
+                    Ok(()) if refusals_only => continue,
                     Ok(()) => RolloutAck {
                         seq,
                         accepted: true,

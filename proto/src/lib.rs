@@ -18,6 +18,12 @@ pub mod pb {
 pub const ACTOR_ID_KEY: &str = "x-saver-actor-id";
 /// Metadata key of the actor's session on StreamRollouts.
 pub const SESSION_KEY: &str = "x-saver-session";
+/// Metadata key on StreamRollouts: with the value [`ACKS_REFUSALS`] the learner answers
+/// only the rollouts it refuses (one message and one wake-up less per rollout for a
+/// client that does nothing with an acceptance); without it, every rollout.
+pub const ACKS_KEY: &str = "x-saver-acks";
+/// The value of [`ACKS_KEY`] that asks for refusals only.
+pub const ACKS_REFUSALS: &str = "refusals";
 
 /// Largest gRPC message either side accepts (weights of d = 16 nets are ~1 MiB).
 pub const MAX_MESSAGE_BYTES: usize = 64 << 20;

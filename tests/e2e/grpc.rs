@@ -70,12 +70,15 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
     // SAVER (with a fixed random PCPN) on angle d = 2 and A2C on select d = 3:
     // 4 actors, 20 updates each way; A2C's actors read the weights from the learner's
     // files, with a thread deleting them now and then (a reader that misses one asks
-    // for the bytes), SAVER's take them over the stream.
-    let saver = RunConfig::paper(
+    // for the bytes), SAVER's take them over the stream. SAVER's episodes end at 30
+    // steps and bootstrap there, so that timeouts and their observations cross the wire.
+    let mut saver = RunConfig::paper(
         EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::Saver,
         20 * 4 * 8,
     );
+    saver.max_episode_steps = 30;
+    saver.bootstrap_timeout = true;
     let a2c = RunConfig::paper(
         EnvSpec::new(EnvKind::Select, 3).unwrap(),
         Algo::A2c,
@@ -148,6 +151,51 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
         assert_tensors_in(&a, &b);
         std::fs::remove_dir_all(dir).ok();
     }
+}
+
+#[test]
+fn an_actor_reports_each_timeout_with_the_observation_it_reached() {
+    // Angle d = 16 with a 3-step limit: one env over 8 steps times out at steps 2 and
+    // 5 (success in 3 steps from a uniform start has probability ~1e-16). The envs are
+    // reset after a timeout, so the observation reached is the one before the step plus
+    // its state change, not the next row of `obs`. The rollout survives the wire.
+    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 16).unwrap(), Algo::A2c, 1);
+    config.max_episode_steps = 3;
+    let dev = candle_core::Device::Cpu;
+    let tensors = saver_core::algo::build(&config, None, &dev)
+        .unwrap()
+        .policy_tensors()
+        .unwrap();
+    let weights = Arc::new(saver_core::link::PolicyWeights {
+        version: 0,
+        tensors,
+    });
+    let layout = config.env.layout();
+    let mut policy = saver_core::nets::Policy::new(weights, layout, config.head).unwrap();
+    let assignment = saver_core::link::Assignment {
+        actor_id: 0,
+        config_hash: config.hash(),
+        config,
+    };
+    let r = saver_actor::Actor::new(&assignment, 1, 1).collect(&mut policy);
+    r.validate(&layout).unwrap();
+    assert_eq!(r.timeouts, vec![2, 5]);
+    let d = layout.obs_dim;
+    for (k, &t) in r.timeouts.iter().enumerate() {
+        let t = t as usize;
+        let reached = &r.timeout_obs[k * d..(k + 1) * d];
+        let before = &r.obs[t * d..(t + 1) * d];
+        let change = &r.state_delta[t * d..(t + 1) * d];
+        for j in 0..d {
+            assert!((reached[j] - (before[j] + change[j])).abs() < 1e-6);
+        }
+        assert_ne!(reached, &r.obs[(t + 1) * d..(t + 2) * d], "the reset row");
+    }
+    let back = saver_core::rollout::Rollout::try_from(saver_proto::pb::Rollout::from(&r)).unwrap();
+    assert_eq!(
+        (back.timeouts, back.timeout_obs),
+        (r.timeouts.clone(), r.timeout_obs.clone())
+    );
 }
 
 #[test]

@@ -12,7 +12,7 @@ use saver_core::link::Assignment;
 use saver_core::nets::Policy;
 use saver_core::rng::rng_for;
 use saver_proto::pb::learner_client::LearnerClient;
-use saver_proto::{pb, ACTOR_ID_KEY, SESSION_KEY};
+use saver_proto::{pb, ACKS_KEY, ACKS_REFUSALS, ACTOR_ID_KEY, SESSION_KEY};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use tokio_stream::StreamExt;
@@ -40,7 +40,7 @@ fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Cod
     let kind = if i % 20_000 == 19_999 {
         99
     } else {
-        rng.random_range(0..11)
+        rng.random_range(0..12)
     };
     let code = match kind {
         0 => {
@@ -122,6 +122,23 @@ fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Cod
             r.episodes = vec![e; 9];
             Code::InvalidArgument
         }
+        11 => {
+            // A timeout at a step that ends no episode or past the rollout, repeated
+            // indices, or a final observation of the wrong length or not finite
+            // (every variant is malformed whether or not the base rollout has a done step).
+            let obs_dim = r.obs.len() / 9;
+            match rng.random_range(0..4) {
+                0 => r.timeouts = vec![rng.random_range(0..8)],
+                1 => r.timeouts = vec![rng.random_range(8..u32::MAX)],
+                2 => r.timeout_obs = vec![0.5; rng.random_range(1..3 * obs_dim)],
+                _ => {
+                    r.done[3] = true;
+                    r.timeouts = vec![3];
+                    r.timeout_obs = vec![f32::NAN; obs_dim];
+                }
+            }
+            Code::InvalidArgument
+        }
         _ => {
             // Over the learner's size cap (but under the message limit).
             r.obs = vec![0.0; saver_core::wire::MAX_ROLLOUT_VALUES + 1];
@@ -129,6 +146,94 @@ fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Cod
         }
     };
     (r, code)
+}
+
+const SESSION: u64 = 0x5eed;
+
+/// Registers a client with the learner at `url` and makes one real rollout (seq 5) of
+/// that actor stepping the env with the current weights.
+async fn register_and_roll(
+    url: &str,
+    hub: &saver_learner::Hub,
+    config: &RunConfig,
+) -> (LearnerClient<tonic::transport::Channel>, pb::Rollout) {
+    let mut client = LearnerClient::connect(url.to_string())
+        .await
+        .unwrap()
+        .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
+    let reply = client
+        .register(pb::RegisterRequest {
+            name: "fuzz".into(),
+            session: SESSION,
+            n_envs: 1,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let assignment = Assignment {
+        actor_id: reply.actor_id,
+        config: config.clone(),
+        config_hash: reply.config_hash,
+    };
+    let mut actor = Actor::new(&assignment, SESSION, 1);
+    let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
+    let mut good = actor.collect(&mut policy);
+    good.seq = 5;
+    (client, pb::Rollout::from(&good))
+}
+
+/// Opens StreamRollouts as `base`'s actor (asking for refusals only if `refusals`).
+async fn open_stream(
+    client: &mut LearnerClient<tonic::transport::Channel>,
+    base: &pb::Rollout,
+    refusals: bool,
+) -> (
+    tokio::sync::mpsc::Sender<pb::Rollout>,
+    tonic::Streaming<pb::RolloutAck>,
+) {
+    let (tx, rx) = tokio::sync::mpsc::channel::<pb::Rollout>(64);
+    let mut req = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
+    let md = req.metadata_mut();
+    md.insert(ACTOR_ID_KEY, base.actor_id.into());
+    md.insert(SESSION_KEY, base.session.into());
+    if refusals {
+        md.insert(ACKS_KEY, ACKS_REFUSALS.parse().unwrap());
+    }
+    (tx, client.stream_rollouts(req).await.unwrap().into_inner())
+}
+
+#[test]
+fn a_stream_that_asks_for_refusals_only_hears_of_nothing_else() {
+    // A good rollout, a malformed one (a NaN observation), then the sender closes: the
+    // only message on the ack stream is the refusal of the second, and the first did
+    // reach the trainer (version 1).
+    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
+    config.actors = 1;
+    config.steps = 1_000_000;
+    let dir = temp_dir("refusals");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
+    let hub = learner.hub.clone();
+    let url =
+        saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
+    let acks: Vec<pb::RolloutAck> = rt.block_on(async {
+        let (mut client, base) = register_and_roll(&url, &hub, &config).await;
+        let (tx, acks) = open_stream(&mut client, &base, true).await;
+        let mut bad = base.clone();
+        bad.seq = 6;
+        bad.obs[0] = f32::NAN;
+        tx.send(base).await.unwrap();
+        tx.send(bad).await.unwrap();
+        drop(tx);
+        acks.map(|a| a.unwrap()).collect().await
+    });
+    assert_eq!(acks.len(), 1, "{acks:?}");
+    assert_eq!((acks[0].seq, acks[0].accepted), (6, false));
+    assert_eq!(Code::from(acks[0].code), Code::InvalidArgument);
+    assert_eq!(hub.wait_weights(1).unwrap().version, 1);
+    assert_eq!(hub.stats.accepted.load(Ordering::Relaxed), 1);
+    hub.close("test over");
+    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -144,39 +249,8 @@ fn a_hundred_thousand_hostile_rollouts_are_refused_and_change_nothing() {
         saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
 
     let (refused, weights_after_one) = rt.block_on(async {
-        let mut client = LearnerClient::connect(url.clone())
-            .await
-            .unwrap()
-            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
-        let session = 0x5eed;
-        let reply = client
-            .register(pb::RegisterRequest {
-                name: "fuzz".into(),
-                session,
-                n_envs: 1,
-            })
-            .await
-            .unwrap()
-            .into_inner();
-        // One real rollout (seq 5) from an actor stepping the env, so that replays
-        // can be told and one update happens.
-        let assignment = Assignment {
-            actor_id: reply.actor_id,
-            config: config.clone(),
-            config_hash: reply.config_hash,
-        };
-        let mut actor = Actor::new(&assignment, session, 1);
-        let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
-        let mut good = actor.collect(&mut policy);
-        good.seq = 5;
-        let base = pb::Rollout::from(&good);
-
-        let (tx, rx) = tokio::sync::mpsc::channel::<pb::Rollout>(64);
-        let mut req = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx));
-        req.metadata_mut()
-            .insert(ACTOR_ID_KEY, reply.actor_id.into());
-        req.metadata_mut().insert(SESSION_KEY, session.into());
-        let mut acks = client.stream_rollouts(req).await.unwrap().into_inner();
+        let (mut client, base) = register_and_roll(&url, &hub, &config).await;
+        let (tx, mut acks) = open_stream(&mut client, &base, false).await;
         tx.send(base.clone()).await.unwrap();
         let ack = acks.next().await.unwrap().unwrap();
         assert!(ack.accepted, "{}", ack.error);

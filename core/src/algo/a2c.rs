@@ -1,7 +1,9 @@
 //! A2C: loss = mean(−log π(a|o)·A) + c_v·mean((V − R)²), A = R − V (no gradient),
 //! scalar reward = sum of the vector reward, shared trunk, entropy β = 0.
 
-use super::{check_finite, matrix, policy_diagnostics, Algorithm, UpdateStats};
+use super::{
+    check_finite, matrix, policy_diagnostics, timeout_ends, update_rows, Algorithm, UpdateStats,
+};
 use crate::config::RunConfig;
 use crate::env::EnvLayout;
 use crate::nets::Agent;
@@ -33,6 +35,8 @@ pub struct A2c {
     gamma: f32,
     /// Value-loss weight.
     value_coef: f64,
+    /// Bootstrap at the step limit.
+    bootstrap_timeout: bool,
     /// Device of the tensors.
     dev: Device,
 }
@@ -50,6 +54,7 @@ impl A2c {
             layout,
             gamma: config.gamma as f32,
             value_coef: config.value_coef,
+            bootstrap_timeout: config.bootstrap_timeout,
             dev: dev.clone(),
         })
     }
@@ -80,16 +85,17 @@ impl Algorithm for A2c {
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let (b, t, o) = (batch.len(), batch.n_traj, self.layout.obs_dim);
-        let obs = matrix(&batch.obs, b, o, &self.dev)?;
-        let last = matrix(&batch.last_obs, t, o, &self.dev)?;
-        let out = self.agent.forward(&Tensor::cat(&[&obs, &last], 0)?)?;
+        let (rows, k) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
+        let out = self.agent.forward(&rows)?;
         let value_all = out.value.expect("A2C agent has a value head");
         let value = value_all.narrow(0, 0, b)?; // [B]
         let bootstrap = value_all.narrow(0, b, t)?.to_vec1::<f32>()?; // [T]
+        let ends = timeout_ends(batch, &value_all, k, 1)?;
         let returns = n_step_returns(
             &batch.scalar_reward(),
             &batch.done,
             &bootstrap,
+            ends.as_deref(),
             batch.n_steps,
             1,
             self.gamma,

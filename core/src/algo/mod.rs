@@ -75,6 +75,48 @@ pub(crate) fn matrix(data: &[f32], rows: usize, cols: usize, dev: &Device) -> Re
     Ok(Tensor::from_slice(data, (rows, cols), dev)?)
 }
 
+/// The rows an update evaluates its networks at: the batch's observations, the last
+/// observation of each trajectory and, when the run bootstraps at timeouts, the final
+/// observation of each timeout; with the count of the last kind.
+pub(crate) fn update_rows(
+    batch: &crate::rollout::Batch,
+    bootstrap_timeout: bool,
+    obs_dim: usize,
+    dev: &Device,
+) -> Result<(Tensor, usize)> {
+    let mut rows = vec![
+        matrix(&batch.obs, batch.len(), obs_dim, dev)?,
+        matrix(&batch.last_obs, batch.n_traj, obs_dim, dev)?,
+    ];
+    let k = if bootstrap_timeout {
+        batch.timeouts.len()
+    } else {
+        0
+    };
+    if k > 0 {
+        rows.push(matrix(&batch.timeout_obs, k, obs_dim, dev)?);
+    }
+    Ok((Tensor::cat(&rows, 0)?, k))
+}
+
+/// The `ends` of [`crate::returns::n_step_returns`] from the values of all update rows
+/// ([`update_rows`], [rows, c]): none without bootstrapped timeouts.
+pub(crate) fn timeout_ends(
+    batch: &crate::rollout::Batch,
+    values: &Tensor,
+    k: usize,
+    c: usize,
+) -> Result<Option<Vec<f32>>> {
+    if k == 0 {
+        return Ok(None);
+    }
+    let v = values
+        .narrow(0, batch.len() + batch.n_traj, k)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
+    Ok(Some(batch.timeout_ends(&v, c)))
+}
+
 /// Fails with a clear error when a loss is not finite.
 pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
     if v.is_finite() {

@@ -6,7 +6,9 @@
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
 use super::saver_grad::{policy_grads, PcpnGrad};
-use super::{check_finite, matrix, policy_diagnostics, Algorithm, UpdateStats};
+use super::{
+    check_finite, matrix, policy_diagnostics, timeout_ends, update_rows, Algorithm, UpdateStats,
+};
 use crate::config::{RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
@@ -48,6 +50,8 @@ pub struct Saver {
     layout: EnvLayout,
     /// γ.
     gamma: f32,
+    /// Bootstrap at the step limit.
+    bootstrap_timeout: bool,
     /// Loss constants.
     cfg: SaverConfig,
     /// Device.
@@ -147,6 +151,7 @@ impl Saver {
             rng: rng_for(config.seed, streams::LEARNER),
             layout,
             gamma: config.gamma as f32,
+            bootstrap_timeout: config.bootstrap_timeout,
             cfg: config.saver,
             dev: dev.clone(),
         })
@@ -176,23 +181,19 @@ impl Algorithm for Saver {
             self.layout.aligned_dim,
         );
         let k = self.cfg.quantiles;
-        let obs_all = Tensor::cat(
-            &[
-                &matrix(&batch.obs, b, o, &self.dev)?,
-                &matrix(&batch.last_obs, t, o, &self.dev)?,
-            ],
-            0,
-        )?;
+        let (obs_all, n_ends) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
         let out = self.agent.forward(&obs_all)?;
         // The critic sees the policy's outputs as constants: its loss trains it alone.
         let x_all = Tensor::cat(&[&obs_all, &out.mu, &out.log_std], 1)?.detach();
         let v_all = self.critic.forward(&x_all)?; // [B+T, d]
         let value = v_all.narrow(0, 0, b)?;
         let bootstrap = v_all.narrow(0, b, t)?.flatten_all()?.to_vec1::<f32>()?;
+        let ends = timeout_ends(batch, &v_all, n_ends, d)?;
         let returns = n_step_returns(
             &batch.vector_reward,
             &batch.done,
             &bootstrap,
+            ends.as_deref(),
             batch.n_steps,
             d,
             self.gamma,

@@ -44,6 +44,8 @@ fn small_batch(l: &EnvLayout) -> Batch {
         state_delta: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
         vector_reward: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
         done: vec![false, true, false, false, false, false],
+        timeouts: vec![],
+        timeout_obs: vec![],
         steps: b as u64,
     }
 }
@@ -249,6 +251,56 @@ fn a2c_update_is_finite_and_changes_the_agent() {
     let stats = a2c.update(&small_batch(&spec.layout())).unwrap();
     assert!(stats.values.iter().all(|v| v.is_finite()));
     assert_ne!(before, a2c.policy_tensors().unwrap());
+}
+
+/// With bootstrapping at timeouts A2C's value loss is c_v·mean((V − R)²) with the
+/// timeout step's return r + γ·V(final observation); without it, or with no timeout in
+/// the batch, the step is terminal. The values come from the same agent built by hand.
+#[test]
+fn a2c_bootstraps_at_a_timeout_from_the_observation_reached() {
+    use crate::nets::HeadConfig;
+    use crate::returns::n_step_returns;
+    use crate::rng::streams;
+    let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
+    let l = spec.layout();
+    let mut batch = small_batch(&l); // trajectory 0 ends at its step 1
+    batch.timeouts = vec![1];
+    batch.timeout_obs = vec![0.9, -0.8];
+    let value_loss = |bootstrap: bool, batch: &crate::rollout::Batch| {
+        let mut config = RunConfig::paper(spec, Algo::A2c, 1);
+        config.bootstrap_timeout = bootstrap;
+        let mut a2c = A2c::new(&config, &Device::Cpu).unwrap();
+        a2c.update(batch).unwrap().values[1]
+    };
+    let mut rng = rng_for(0, streams::INIT);
+    let agent = Agent::new(&l, HeadConfig::FAITHFUL, true, &mut rng, &Device::Cpu).unwrap();
+    let v = |rows: &[f32]| -> Vec<f32> {
+        let x = Tensor::from_slice(rows, (rows.len() / 2, 2), &Device::Cpu).unwrap();
+        agent.forward(&x).unwrap().value.unwrap().to_vec1().unwrap()
+    };
+    let (values, last, reached) = (v(&batch.obs), v(&batch.last_obs), v(&batch.timeout_obs));
+    let rewards = batch.scalar_reward();
+    let expected = |ends: Option<&[f32]>| {
+        let r = n_step_returns(&rewards, &batch.done, &last, ends, 3, 1, 0.99);
+        0.5 * values
+            .iter()
+            .zip(&r)
+            .map(|(v, r)| (v - r).powi(2))
+            .sum::<f32>()
+            / 6.0
+    };
+    let with = expected(Some(&[0., reached[0], 0., 0., 0., 0.]));
+    let without = expected(None);
+    assert!(
+        (with - without).abs() > 1e-4,
+        "{with} vs {without}: the case tells nothing"
+    );
+    let close = |a: f32, b: f32| (a - b).abs() <= 1e-6 * b.abs().max(1.0);
+    assert!(close(value_loss(true, &batch), with));
+    assert!(close(value_loss(false, &batch), without));
+    batch.timeouts.clear();
+    batch.timeout_obs.clear();
+    assert!(close(value_loss(true, &batch), without));
 }
 
 /// The fast path's dL/dμ and dL/dlog σ equal candle autograd's through the reference
