@@ -173,11 +173,11 @@ impl Rollout {
 
     fn validate_timeouts(&self, obs_dim: usize) -> Result<()> {
         let mut prev = None;
-        for &i in &self.timeouts {
+        for (k, &i) in self.timeouts.iter().enumerate() {
             if !self.done.get(i as usize).copied().unwrap_or(false) || prev >= Some(i) {
                 return Err(CoreError::Data(format!(
-                    "rollout timeouts {:?} are not ascending steps that end an episode",
-                    self.timeouts
+                    "rollout timeouts[{k}] = {i} is not a step that ends an episode, after \
+                     the one before"
                 )));
             }
             prev = Some(i);
