@@ -303,6 +303,33 @@ fn a2c_bootstraps_at_a_timeout_from_the_observation_reached() {
     assert!(close(value_loss(true, &batch), without));
 }
 
+/// SAVER uses a timeout's final observation only with bootstrapping on: its critic
+/// loss (2nd stat) changes with the option on a batch with a timeout, and with the
+/// option on a batch without timeouts everything equals the run without it, bit for bit.
+#[test]
+fn saver_bootstraps_at_a_timeout_only_when_asked() {
+    let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
+    let l = spec.layout();
+    let mut batch = small_batch(&l);
+    batch.timeouts = vec![1];
+    batch.timeout_obs = vec![0.9, -0.8];
+    let stats = |bootstrap: bool, batch: &crate::rollout::Batch| {
+        let mut config = RunConfig::recommended(spec, Algo::Saver, 1);
+        config.bootstrap_timeout = bootstrap;
+        let pcpn = random_pcpn(&l, DType::F32);
+        let mut saver = Saver::new(&config, pcpn, &Device::Cpu).unwrap();
+        saver.update(batch).unwrap().values
+    };
+    let (off, on) = (stats(false, &batch), stats(true, &batch));
+    assert!(
+        (on[2] - off[2]).abs() > 1e-6 * off[2].abs(),
+        "{on:?} vs {off:?}"
+    );
+    batch.timeouts.clear();
+    batch.timeout_obs.clear();
+    assert_eq!(stats(true, &batch), off);
+}
+
 /// The fast path's dL/dμ and dL/dlog σ equal candle autograd's through the reference
 /// graph, within 1e-5 of the gradient's scale, on random inputs at the real sizes
 /// (B = 128, K = 32) for every env layout, with the plain and the Huber quantile loss,
