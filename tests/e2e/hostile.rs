@@ -202,20 +202,36 @@ async fn open_stream(
     (tx, client.stream_rollouts(req).await.unwrap().into_inner())
 }
 
-#[test]
-fn a_stream_that_asks_for_refusals_only_hears_of_nothing_else() {
-    // A good rollout, a malformed one (a NaN observation), then the sender closes: the
-    // only message on the ack stream is the refusal of the second, and the first did
-    // reach the trainer (version 1).
+/// A learner (A2C, angle d = 2, sync, one actor) served on 127.0.0.1:0: its config,
+/// output dir, runtime, handle (kept alive by the caller), hub and URL.
+fn one_actor_learner(
+    name: &str,
+) -> (
+    RunConfig,
+    std::path::PathBuf,
+    tokio::runtime::Runtime,
+    saver::train::LocalLearner,
+    Arc<saver_learner::Hub>,
+    String,
+) {
     let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
     config.actors = 1;
     config.steps = 1_000_000;
-    let dir = temp_dir("refusals");
+    let dir = temp_dir(name);
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
     let url =
         saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
+    (config, dir, rt, learner, hub, url)
+}
+
+#[test]
+fn a_stream_that_asks_for_refusals_only_hears_of_nothing_else() {
+    // A good rollout, a malformed one (a NaN observation), then the sender closes: the
+    // only message on the ack stream is the refusal of the second, and the first did
+    // reach the trainer (version 1).
+    let (config, dir, rt, _learner, hub, url) = one_actor_learner("refusals");
     let acks: Vec<pb::RolloutAck> = rt.block_on(async {
         let (mut client, base) = register_and_roll(&url, &hub, &config).await;
         let (tx, acks) = open_stream(&mut client, &base, true).await;
@@ -238,15 +254,7 @@ fn a_stream_that_asks_for_refusals_only_hears_of_nothing_else() {
 
 #[test]
 fn a_hundred_thousand_hostile_rollouts_are_refused_and_change_nothing() {
-    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
-    config.actors = 1;
-    config.steps = 1_000_000;
-    let dir = temp_dir("hostile");
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
-    let hub = learner.hub.clone();
-    let url =
-        saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
+    let (config, dir, rt, _learner, hub, url) = one_actor_learner("hostile");
 
     let (refused, weights_after_one) = rt.block_on(async {
         let (mut client, base) = register_and_roll(&url, &hub, &config).await;
