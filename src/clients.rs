@@ -107,9 +107,11 @@ pub fn status(args: StatusArgs) -> Result<()> {
     println!("version {}", s.version);
     println!("steps {}", s.steps);
     println!("actors {}", s.actors);
+    println!("pending {}", s.pending);
     println!("accepted {}", s.accepted);
     println!("rejected {}", s.rejected);
     println!("stale_dropped {}", s.stale_dropped);
+    println!("skipped_updates {}", s.skipped_updates);
     println!("mean_ep_len_100 {}", s.mean_ep_len_100);
     println!("finished {}", s.finished);
     Ok(())

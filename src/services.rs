@@ -149,8 +149,9 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         tls: args.pcpn_ca.as_deref().map(client_tls).transpose()?,
     };
     let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    std::fs::write(out.join("config.toml"), crate::config::to_toml(&config))?;
+    // A folder of another run is refused before anything is fetched or written.
+    saver_learner::checkpoint::check_settings(&out, &config)
+        .with_context(|| format!("resuming from {}", out.display()))?;
     let rt = runtime()?;
     let pcpn = match (config.algo, args.pcpn.as_deref()) {
         (Algo::A2c, _) => None,
@@ -166,6 +167,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         }
         (Algo::Saver, file) => {
             let store = PcpnStore::new(&args.pcpn_dir);
+            store.remove_stale_temporaries();
             Some(obtain_pcpn(&config, &store, file.map(Path::new))?.0)
         }
     };
@@ -214,6 +216,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
             steps: row.steps,
             mean_ep_len_100: row.mean_ep_len_100,
             stale_dropped: row.stale_dropped,
+            skipped_updates: row.skipped_updates,
             finished: false,
         });
     })?;

@@ -12,7 +12,7 @@ use saver_core::config::{Algo, RunConfig};
 use saver_core::link::{PolicyWeights, Registration};
 use saver_core::nets::Pcpn;
 use saver_learner::{
-    spawn_trainer, ActorStates, Counters, Hub, InProcessLink, MetricsRow, TrainerHandle,
+    spawn_trainer, ActorStates, Counters, Hub, InProcessLink, MetricsRow, Resumed, TrainerHandle,
     TrainerOptions, TrainerOutcome,
 };
 use saver_pcpn_trainer::PcpnStore;
@@ -64,11 +64,16 @@ pub fn train(
     stop: Arc<AtomicBool>,
     show: bool,
 ) -> Result<TrainerOutcome> {
-    std::fs::create_dir_all(out)
-        .with_context(|| format!("creating run folder {}", out.display()))?;
-    std::fs::write(out.join("config.toml"), to_toml(config)).context("writing config.toml")?;
+    // Refuse a folder of another run before anything else (a PCPN's pretraining
+    // included); start_learner checks again and only then writes into it.
+    saver_learner::checkpoint::check_settings(out, config)
+        .with_context(|| format!("resuming from {}", out.display()))?;
     let pcpn = match config.algo {
-        Algo::Saver => Some(obtain_pcpn(config, &PcpnStore::new(pcpn_dir), pcpn_file)?.0),
+        Algo::Saver => {
+            let store = PcpnStore::new(pcpn_dir);
+            store.remove_stale_temporaries();
+            Some(obtain_pcpn(config, &store, pcpn_file)?.0)
+        }
         Algo::A2c => None,
     };
     let outcome = train_with(config, out, pcpn, stop, show)?;
@@ -95,7 +100,10 @@ pub struct LocalLearner {
 /// Builds the algorithm around `pcpn` (SAVER) or none (A2C), resumes it from `out`'s
 /// checkpoint when there is one of the same settings, publishes the first version and
 /// starts the trainer thread writing into `out` (a checkpoint every `checkpoint_every`
-/// updates too, when it is not 0).
+/// updates too, when it is not 0). Nothing in `out` changes before the run is
+/// accepted; then config.toml is written, temporaries of a killed run are removed, and
+/// metrics.csv loses the rows written after the checkpoint. Versions go on above every
+/// version the killed run published, so no client sees a number twice.
 pub fn start_learner(
     config: &RunConfig,
     out: &Path,
@@ -107,27 +115,50 @@ pub fn start_learner(
     let mut algo = saver_core::algo::build(config, pcpn, &dev)?;
     let resumed = saver_learner::resume(out, config, algo.as_mut())
         .with_context(|| format!("resuming from {}", out.display()))?;
-    if let Some((c, _)) = &resumed {
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("creating run folder {}", out.display()))?;
+    std::fs::write(out.join("config.toml"), to_toml(config)).context("writing config.toml")?;
+    saver_core::checkpoint::remove_stale_temporaries(out);
+    let Resumed {
+        counters: mut start,
+        actors,
+        window,
+    } = resumed.unwrap_or_default();
+    if start != Counters::default() {
+        let csv = out.join("metrics.csv");
+        let (dropped, newest) = saver_learner::metrics::truncate_after(&csv, start.steps)
+            .with_context(|| format!("reading {}", csv.display()))?;
         eprintln!(
-            "resuming {} from its checkpoint: version {}, {} steps, {} episodes",
+            "resuming {} from its checkpoint: version {}, {} steps, {} episodes{}",
             out.display(),
-            c.version,
-            c.steps,
-            c.episodes
+            start.version,
+            start.steps,
+            start.episodes,
+            if dropped > 0 {
+                format!(
+                    "; {dropped} rows of metrics.csv written after it were dropped, and \
+                     versions continue from {} (the last one published was {newest})",
+                    newest + 1
+                )
+            } else {
+                String::new()
+            }
         );
+        start.version = start.version.max(newest);
     }
-    let (start, actors) = resumed.unwrap_or_default();
     let initial = PolicyWeights {
         version: start.version,
         tensors: algo.policy_tensors()?,
     };
     let (hub, rx) = Hub::new(config.clone(), initial, 2 * config.actors as usize);
+    hub.resume_actors(&actors);
     let (row_tx, rows) = mpsc::channel::<MetricsRow>();
     let opts = TrainerOptions {
         rows: Some(row_tx),
         checkpoint_every,
         start,
         actors: actors.clone(),
+        window,
         ..TrainerOptions::new(out.to_path_buf(), stop)
     };
     let trainer = spawn_trainer(algo, hub.clone(), rx, opts)?;
@@ -219,7 +250,7 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
         .map(|m| format!("{m:.1}"))
         .unwrap_or_else(|| "n/a (no episode finished)".into());
     println!(
-        "{} {}: {} steps, {} updates in {:.1} s ({:.0} steps/s){}; mean episode length (last 100): {len}",
+        "{} {}: {} steps, {} updates in {:.1} s of training ({:.0} steps/s){}; mean episode length (last 100): {len}",
         config.algo.name(),
         config.env,
         o.steps,

@@ -237,10 +237,27 @@ impl GrpcLink {
             let mut acks = acks;
             while let Some(a) = acks.next().await {
                 match a {
+                    // The learner no longer knows this registration (it expired, the
+                    // learner restarted, or the rollout looked like a replay): the
+                    // link is lost, and the actor registers again.
+                    Ok(a) if !a.accepted && a.code == tonic::Code::FailedPrecondition as i32 => {
+                        let _ = closed.send(Some(LinkError::Closed(format!(
+                            "rollout {} refused: {}; registering again",
+                            a.seq, a.error
+                        ))));
+                        return;
+                    }
                     Ok(a) if !a.accepted => {
                         tracing::warn!("rollout {} rejected: {}", a.seq, a.error)
                     }
                     Ok(_) => {}
+                    Err(s) if s.code() == tonic::Code::FailedPrecondition => {
+                        let _ = closed.send(Some(LinkError::Closed(format!(
+                            "the learner ended the rollout stream: {}; registering again",
+                            s.message()
+                        ))));
+                        return;
+                    }
                     Err(s) => {
                         let _ = closed.send(Some(status_error(s)));
                         return;
@@ -318,9 +335,15 @@ impl LearnerLink for GrpcLink {
                 dir.display()
             );
         }
-        self.open_streams(reply.actor_id, reg.session, files)?;
+        self.open_streams(reply.actor_id, reply.session, files)
+            .map_err(|e| match e {
+                // The registration expired before the stream opened: try again.
+                LinkError::Mismatch(why) => LinkError::Closed(why),
+                e => e,
+            })?;
         Ok(Assignment {
             actor_id: reply.actor_id,
+            session: reply.session,
             config,
             config_hash: reply.config_hash,
         })

@@ -64,7 +64,7 @@ pub struct Actor {
 
 impl Actor {
     /// An actor for an assignment, with `n_envs` fresh envs reset from its own stream.
-    pub fn new(assignment: &Assignment, session: u64, n_envs: usize) -> Self {
+    pub fn new(assignment: &Assignment, n_envs: usize) -> Self {
         let c: &RunConfig = &assignment.config;
         let layout = c.env.layout();
         let mut rng = rng_for(c.seed, streams::ACTOR_BASE + assignment.actor_id as u64);
@@ -79,7 +79,7 @@ impl Actor {
         }
         Self {
             id: assignment.actor_id,
-            session,
+            session: assignment.session,
             envs,
             obs,
             running: vec![(0, 0.0); n_envs],
@@ -139,6 +139,7 @@ impl Actor {
                         length: run.0,
                         success: step.success,
                         ret: run.1,
+                        verified: true,
                     });
                     *run = (0, 0.0);
                     self.envs[i].reset(&mut self.rng, &mut self.obs[i]);
@@ -208,7 +209,7 @@ pub fn run_actor_from(
 ) -> Result<ActorSummary, ActorError> {
     let assignment = link.register(reg)?;
     let layout = assignment.config.env.layout();
-    let mut actor = Actor::new(&assignment, reg.session, reg.n_envs as usize);
+    let mut actor = Actor::new(&assignment, reg.n_envs as usize);
     if let Some(s) = saved.get(&assignment.actor_id) {
         actor.restore(s)?;
     }

@@ -49,12 +49,49 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .file_name()
         .and_then(|n| n.to_str())
         .unwrap_or("checkpoint");
+    // Named after this process: [`remove_stale_temporaries`] knows a dead writer's.
     let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
     let mut f = std::fs::File::create(&tmp).map_err(io)?;
     f.write_all(bytes).map_err(io)?;
     f.sync_all().map_err(io)?;
     drop(f);
     std::fs::rename(&tmp, path).map_err(io)
+}
+
+/// Removes the temporaries [`write_atomic`] left in `dir` when its process was killed
+/// mid-write (`.<name>.tmp-<pid>` of a pid that no longer runs here, or older than a
+/// day); returns how many it removed. A live writer's temporary is kept.
+pub fn remove_stale_temporaries(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name
+            .to_str()
+            .filter(|n| n.starts_with('.'))
+            .and_then(|n| n.rsplit_once(".tmp-"))
+            .and_then(|(_, pid)| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let old = entry
+            .metadata()
+            .and_then(|m| m.modified())
+            .ok()
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age.as_secs() > 24 * 3600);
+        let alive = pid != std::process::id() && Path::new(&format!("/proc/{pid}")).exists();
+        if (old || !alive) && std::fs::remove_file(entry.path()).is_ok() {
+            tracing::info!(
+                "removed {}, left by a killed writer",
+                entry.path().display()
+            );
+            removed += 1;
+        }
+    }
+    removed
 }
 
 /// Saves tensors and metadata to `path` atomically; returns the file's sha256.

@@ -21,6 +21,10 @@ pub enum CoreError {
     /// Training produced a non-finite or exploding loss.
     #[error("diverged: {0}")]
     Diverged(String),
+    /// One update met a non-finite loss or gradient (a batch with extreme values): it
+    /// was skipped and changed nothing; training goes on.
+    #[error("non-finite update skipped: {0}")]
+    NonFinite(String),
     /// The wire codec failed.
     #[error(transparent)]
     Codec(#[from] saver_proto::CodecError),

@@ -11,6 +11,7 @@ pub mod config;
 pub mod embedding;
 pub mod env;
 pub mod error;
+pub mod limits;
 pub mod link;
 pub mod loss;
 pub mod nets;

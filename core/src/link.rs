@@ -13,7 +13,8 @@ use std::time::Duration;
 pub struct Registration {
     /// Human-readable name (host, pid) for logs.
     pub name: String,
-    /// Random per actor process: tells a restarted actor from a delayed one.
+    /// The client's own random number, for its logs; the learner issues the session
+    /// itself ([`Assignment::session`]).
     pub session: u64,
     /// How many env instances this actor steps per rollout.
     pub n_envs: u32,
@@ -24,6 +25,9 @@ pub struct Registration {
 pub struct Assignment {
     /// Dense id; sync batches are ordered by it and actor seeds derive from it.
     pub actor_id: u32,
+    /// The learner's secret for this registration: every rollout and the rollout
+    /// stream carry it; no other client can guess it.
+    pub session: u64,
     /// The run's validated config (env, algorithm, rollout length, seed).
     pub config: RunConfig,
     /// Hash of the config, so both sides can tell they agree.

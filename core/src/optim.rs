@@ -175,15 +175,23 @@ impl Optimizer {
 
     /// Applies one step with the gradients in `grads`; variables without a gradient
     /// are left alone (their slots too). Returns the gradients' global norm (before
-    /// clipping).
+    /// clipping). A non-finite gradient norm, or a step that would make any variable
+    /// or slot non-finite, changes nothing (not even the step count) and is
+    /// [`CoreError::NonFinite`]: one bad batch never poisons the weights.
     pub fn step(&mut self, grads: &GradStore) -> Result<f64> {
         let lr = self.current_lr();
-        self.t += 1;
         let norm = self.grad_norm(grads)?;
+        if !norm.is_finite() {
+            return Err(CoreError::NonFinite(format!("the gradient norm is {norm}")));
+        }
+        let t = self.t + 1;
         let scale = match self.clip {
             Some(c) if norm > c => c / norm,
             _ => 1.0,
         };
+        // (index, new value, new slot 1, new slot 2): computed in full, committed only
+        // when every value is finite.
+        let mut next = Vec::with_capacity(self.vars.len());
         for i in 0..self.vars.len() {
             let var = &self.vars[i].1;
             let Some(g) = grads.get(var.as_tensor()) else {
@@ -203,21 +211,47 @@ impl Optimizer {
                     let ms = &self.slot1[i];
                     let ms = (ms + ((g.sqr()? - ms)? * one_minus as f64)?)?;
                     let step = ((g * lr)? / (&ms + eps)?.sqrt()?)?;
-                    var.set(&(var.as_tensor() - step)?)?;
-                    self.slot1[i] = ms.detach();
+                    next.push((i, (var.as_tensor() - step)?, ms.detach(), None));
                 }
                 OptimizerConfig::Adam { beta1, beta2, eps } => {
-                    let t = self.t as i32;
+                    let t = t as i32;
                     let lr_t = lr * (1.0 - beta2.powi(t)).sqrt() / (1.0 - beta1.powi(t));
                     let m = ((&self.slot1[i] * beta1)? + (g * (1.0 - beta1))?)?;
                     let v = ((&self.slot2[i] * beta2)? + (g.sqr()? * (1.0 - beta2))?)?;
                     let step = ((&m * lr_t)? / (v.sqrt()? + eps)?)?;
-                    var.set(&(var.as_tensor() - step)?)?;
-                    self.slot1[i] = m.detach();
-                    self.slot2[i] = v.detach();
+                    next.push((i, (var.as_tensor() - step)?, m.detach(), Some(v.detach())));
                 }
             }
         }
+        for (i, value, s1, s2) in &next {
+            for (what, x) in [
+                ("value", Some(value)),
+                ("slot", Some(s1)),
+                ("slot", s2.as_ref()),
+            ] {
+                let Some(x) = x else { continue };
+                // A sum of finite values of this size is finite; inf or NaN anywhere
+                // makes it non-finite.
+                let sum = x
+                    .sum_all()?
+                    .to_dtype(candle_core::DType::F64)?
+                    .to_scalar::<f64>()?;
+                if !sum.is_finite() {
+                    return Err(CoreError::NonFinite(format!(
+                        "the step would make the {what} of {} non-finite",
+                        self.vars[*i].0
+                    )));
+                }
+            }
+        }
+        for (i, value, s1, s2) in next {
+            self.vars[i].1.set(&value)?;
+            self.slot1[i] = s1;
+            if let Some(s2) = s2 {
+                self.slot2[i] = s2;
+            }
+        }
+        self.t = t;
         Ok(norm)
     }
 

@@ -18,6 +18,10 @@ pub struct Episode {
     pub success: bool,
     /// Undiscounted scalar return (sum of the vector reward components).
     pub ret: f32,
+    /// The learner could check its length against the steps it counted (false for
+    /// an episode that began before a gap in an actor's rollouts): only verified
+    /// episodes enter the run's metrics.
+    pub verified: bool,
 }
 
 /// n steps of E envs from one actor at one policy version.
@@ -166,6 +170,14 @@ impl Rollout {
                 "rollout done has {} entries, expected {}",
                 self.done.len(),
                 e * n
+            )));
+        }
+        let ends = self.done.iter().filter(|&&d| d).count();
+        if ends != self.episodes.len() {
+            return Err(CoreError::Data(format!(
+                "rollout has {ends} done flags and {} episodes: each done flag carries \
+                 exactly one episode, in the order of the flags",
+                self.episodes.len()
             )));
         }
         self.validate_timeouts(layout.obs_dim)

@@ -122,6 +122,7 @@ impl TryFrom<pb::Rollout> for Rollout {
                     length: e.length,
                     success: e.success,
                     ret: e.ret,
+                    verified: true,
                 })
                 .collect(),
         })

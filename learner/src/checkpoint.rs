@@ -1,6 +1,7 @@
 //! The learner's checkpoint: what it holds, writing it atomically, and resuming a run
 //! from it.
 
+use crate::metrics::EpisodeWindow;
 use saver_core::algo::Algorithm;
 use saver_core::checkpoint;
 use saver_core::config::RunConfig;
@@ -21,19 +22,33 @@ pub struct Counters {
     pub steps: u64,
     /// Episodes finished.
     pub episodes: u64,
+    /// Milliseconds of training before this process (a resumed run's rates go on from
+    /// them).
+    pub wall_ms: u64,
+}
+
+/// What a resumed run starts from.
+#[derive(Clone, Debug, Default)]
+pub struct Resumed {
+    /// Counters.
+    pub counters: Counters,
+    /// Saved in-process actors.
+    pub actors: ActorStates,
+    /// The last episodes, so that the 100-episode mean goes on where it was.
+    pub window: EpisodeWindow,
 }
 
 /// Name of the learner's checkpoint in its run folder.
 pub const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
 
-/// Loads `run_dir`'s checkpoint into `algo` if there is one and returns its counters
-/// and saved actors (`None`: no checkpoint, a fresh run). A checkpoint of another
-/// config is an error: resuming it would mix two runs.
+/// Loads `run_dir`'s checkpoint into `algo` if there is one and returns its counters,
+/// saved actors and episode window (`None`: no checkpoint, a fresh run). A checkpoint
+/// of another config is an error: resuming it would mix two runs.
 pub fn resume(
     run_dir: &Path,
     config: &RunConfig,
     algo: &mut dyn Algorithm,
-) -> Result<Option<(Counters, ActorStates)>> {
+) -> Result<Option<Resumed>> {
     let path = run_dir.join(CHECKPOINT_FILE);
     if !path.exists() {
         return Ok(None);
@@ -55,20 +70,7 @@ pub fn resume(
             path.display()
         )));
     }
-    // Every setting must match but the length of the run: resuming with more steps
-    // trains on.
-    let saved: Option<RunConfig> = serde_json::from_str(&meta("config")?).ok();
-    let same = saved.is_some_and(|mut saved| {
-        saved.steps = config.steps;
-        saved.hash() == config.hash()
-    });
-    if !same {
-        return Err(CoreError::Checkpoint(format!(
-            "{} belongs to a run with other settings; resume it with the same settings \
-             (its config.toml; only --steps may change) or start this run in another folder",
-            path.display()
-        )));
-    }
+    same_settings(&path, &meta("config")?, config)?;
     let tensors = checkpoint::to_candle(&c.tensors, &saver_core::device())?;
     algo.load_state(&|n| tensors.get(n).cloned(), num("optimizer_steps")? as u64)?;
     if let Some(pos) = c.meta.get("rng_word_pos") {
@@ -81,7 +83,25 @@ pub fn resume(
         version: num("version")? as u64,
         steps: num("steps")? as u64,
         episodes: num("episodes")? as u64,
+        // Checkpoints before wall_ms existed resume with the clock at 0.
+        wall_ms: c
+            .meta
+            .get("wall_ms")
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0),
     };
+    let window = EpisodeWindow::from_saved(
+        c.tensors.iter().find(|t| t.name == "window.all"),
+        c.tensors.iter().find(|t| t.name == "window.actor0"),
+        c.meta
+            .get("window.total")
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0),
+        c.meta
+            .get("window.successes")
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0),
+    );
     // Saved actors: `actor.<id>.state` rows, `actor.<id>.rng` and `.seq` metadata.
     let env_len = config.env.make(config.max_episode_steps).snapshot().len();
     let obs_len = config.env.layout().obs_dim;
@@ -101,7 +121,45 @@ pub fn resume(
         let state = ActorState::from_rows(&t.shape, &t.data, env_len, obs_len, rng, seq)?;
         actors.insert(id, state);
     }
-    Ok(Some((counters, actors)))
+    Ok(Some(Resumed {
+        counters,
+        actors,
+        window,
+    }))
+}
+
+/// Refuses `run_dir` when its checkpoint belongs to a run of other settings (no
+/// checkpoint: a fresh run, accepted). Reads only; call it before writing anything there.
+pub fn check_settings(run_dir: &Path, config: &RunConfig) -> Result<()> {
+    let path = run_dir.join(CHECKPOINT_FILE);
+    if !path.exists() {
+        return Ok(());
+    }
+    let c = checkpoint::load(&path)?;
+    let saved = c.meta.get("config").cloned().unwrap_or_default();
+    same_settings(&path, &saved, config)
+}
+
+/// Every setting must match but the length of the run: resuming with more steps
+/// trains on.
+fn same_settings(path: &Path, saved_json: &str, config: &RunConfig) -> Result<()> {
+    let saved: Option<RunConfig> = serde_json::from_str(saved_json).ok();
+    let same = saved.is_some_and(|mut saved| {
+        saved.steps = config.steps;
+        saved.hash() == config.hash()
+    });
+    if same {
+        return Ok(());
+    }
+    let run_dir = path.parent().unwrap_or(Path::new("."));
+    Err(CoreError::Checkpoint(format!(
+        "{} belongs to a run with other settings; nothing in that folder was changed. \
+         Resume it with its own settings (`--config {}`; only --steps may change), or \
+         start this run in another folder (--out DIR; with docker compose, another \
+         project name (-p NAME) or `down -v` to delete the old run's volume)",
+        path.display(),
+        run_dir.join("config.toml").display()
+    )))
 }
 
 const CHECKPOINT_FORMAT: &str = "saver-learner-checkpoint/1";
@@ -114,14 +172,19 @@ pub fn save(
     algo: &dyn Algorithm,
     c: &Counters,
     actors: &ActorStates,
+    window: &EpisodeWindow,
     config: &RunConfig,
 ) -> Result<()> {
     let mut tensors = checkpoint::to_named_all(&algo.state_tensors()?)?;
+    tensors.extend(window.to_saved());
     let mut meta = HashMap::from([
         ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
         ("version".to_string(), c.version.to_string()),
         ("steps".to_string(), c.steps.to_string()),
         ("episodes".to_string(), c.episodes.to_string()),
+        ("wall_ms".to_string(), c.wall_ms.to_string()),
+        ("window.total".to_string(), window.total.to_string()),
+        ("window.successes".to_string(), window.successes.to_string()),
         (
             "optimizer_steps".to_string(),
             algo.optimizer_steps().to_string(),

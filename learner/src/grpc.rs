@@ -88,6 +88,8 @@ pub struct TrainerStatus {
     pub mean_ep_len_100: Option<f64>,
     /// Rollouts dropped as stale.
     pub stale_dropped: u64,
+    /// Updates skipped for a non-finite loss or gradient.
+    pub skipped_updates: u64,
     /// Training is over.
     pub finished: bool,
 }
@@ -119,6 +121,49 @@ fn link_status(e: LinkError) -> Status {
         LinkError::Rejected(why) => Status::invalid_argument(why),
         LinkError::Mismatch(why) => Status::failed_precondition(why),
         LinkError::TooLarge(why) => Status::resource_exhausted(why),
+    }
+}
+
+/// Queues a rollout without leaving the runtime; only a full queue (the trainer is
+/// behind) waits on the blocking pool.
+async fn submit(hub: &Arc<Hub>, r: Rollout) -> Result<(), LinkError> {
+    match hub.try_submit(r) {
+        Ok(Some(back)) => {
+            let h = hub.clone();
+            blocking(move || h.submit(back))
+                .await
+                .unwrap_or_else(|s| Err(LinkError::Closed(s.message().to_string())))
+        }
+        Ok(None) => Ok(()),
+        Err(e) => Err(e),
+    }
+}
+
+/// The status that ends a rollout stream whose next message could not be read:
+/// RESOURCE_EXHAUSTED over the size limit, INVALID_ARGUMENT when it does not decode;
+/// `None` when the client went away (nothing to answer).
+fn inbound_error(s: &Status) -> Option<Status> {
+    let m = s.message();
+    if s.code() == tonic::Code::ResourceExhausted {
+        Some(s.clone())
+    } else if s.code() == tonic::Code::OutOfRange || m.contains("too large") {
+        Some(Status::resource_exhausted(format!(
+            "rollout message over the size limit: {m}"
+        )))
+    } else if s.code() == tonic::Code::Internal && m.contains("decode") {
+        Some(Status::invalid_argument(format!(
+            "rollout message does not decode as saver.v1.Rollout: {m}"
+        )))
+    } else {
+        None
+    }
+}
+
+/// The link error a stream-ending status stands for (for the refusal count and log).
+fn status_link(s: &Status) -> LinkError {
+    match s.code() {
+        tonic::Code::ResourceExhausted => LinkError::TooLarge(s.message().to_string()),
+        _ => LinkError::Rejected(s.message().to_string()),
     }
 }
 
@@ -234,7 +279,7 @@ impl Learner for LearnerService {
             session: r.session,
             n_envs: r.n_envs,
         };
-        let a = blocking(move || hub.register(&reg))
+        let a = blocking(move || hub.register_remote(&reg))
             .await?
             .map_err(link_status)?;
         let config_json =
@@ -248,6 +293,7 @@ impl Learner for LearnerService {
             mode: a.config.mode.name().to_string(),
             weights_dir,
             weights_dir_id,
+            session: a.session,
         }))
     }
 
@@ -257,16 +303,23 @@ impl Learner for LearnerService {
         &self,
         req: Request<Streaming<pb::Rollout>>,
     ) -> Result<Response<Self::StreamRolloutsStream>, Status> {
-        // The actor names itself in metadata, so that it leaves the rounds when its
-        // stream closes (a sync round would otherwise wait for it forever).
-        let owner = actor_metadata(req.metadata());
+        // The actor names its registration in metadata: the stream claims it (the
+        // actor counts in rounds from now on) and leaves the rounds when it closes. A
+        // client that names none claims it with its first rollout.
+        let mut owner = actor_metadata(req.metadata());
+        if let Some((id, session)) = owner {
+            let hub = self.hub.clone();
+            blocking(move || hub.attach(id, session))
+                .await?
+                .map_err(link_status)?;
+        }
         let refusals_only =
             req.metadata().get(ACKS_KEY).and_then(|v| v.to_str().ok()) == Some(ACKS_REFUSALS);
         let mut inbound = req.into_inner();
         let (tx, rx) = mpsc::channel(32);
         let hub = self.hub.clone();
         tokio::spawn(async move {
-            let _leave = owner.map(|(id, session)| Leave {
+            let mut leave = owner.map(|(id, session)| Leave {
                 hub: hub.clone(),
                 id,
                 session,
@@ -275,31 +328,59 @@ impl Learner for LearnerService {
                 let msg = match msg {
                     Ok(m) => m,
                     Err(status) => {
-                        tracing::debug!("rollout stream ended: {status}");
+                        // A message that is too large or undecodable ends the stream
+                        // with the status that says so (counted and logged); a client
+                        // that went away just ends it.
+                        if let Some(s) = inbound_error(&status) {
+                            hub.refused(owner.map_or(u32::MAX, |o| o.0), &status_link(&s));
+                            let _ = tx.send(Err(s)).await;
+                        } else {
+                            tracing::debug!("rollout stream ended: {status}");
+                        }
                         break;
                     }
                 };
                 let seq = msg.seq;
-                let outcome = match Rollout::try_from(msg) {
-                    Err(e) => {
-                        hub.stats.rejected.fetch_add(1, Ordering::Relaxed);
-                        Err(match e {
+                let outcome = match (owner, Rollout::try_from(msg)) {
+                    (_, Err(e)) => {
+                        let e = match e {
                             CoreError::TooLarge(why) => LinkError::TooLarge(why),
                             e => LinkError::Rejected(e.to_string()),
-                        })
+                        };
+                        hub.refused(owner.map_or(u32::MAX, |o| o.0), &e);
+                        Err(e)
                     }
-                    // Queue without leaving the runtime; only a full queue (the
-                    // trainer is behind) waits on the blocking pool.
-                    Ok(r) => match hub.try_submit(r) {
-                        Ok(Some(back)) => {
-                            let h = hub.clone();
-                            blocking(move || h.submit(back))
-                                .await
-                                .unwrap_or_else(|s| Err(LinkError::Closed(s.message().to_string())))
+                    (Some((id, session)), Ok(r)) if (r.actor_id, r.session) != (id, session) => {
+                        let e = LinkError::Mismatch(format!(
+                            "this stream belongs to actor {id}; a rollout of actor {} with \
+                             another session is refused",
+                            r.actor_id
+                        ));
+                        hub.refused(id, &e);
+                        Err(e)
+                    }
+                    (None, Ok(r)) => {
+                        // The first rollout of an unnamed stream claims its registration.
+                        let (id, session) = (r.actor_id, r.session);
+                        let h = hub.clone();
+                        match blocking(move || h.attach(id, session)).await {
+                            Ok(Ok(_)) => {
+                                owner = Some((id, session));
+                                leave = Some(Leave {
+                                    hub: hub.clone(),
+                                    id,
+                                    session,
+                                });
+                                submit(&hub, r).await
+                            }
+                            Ok(Err(e)) => {
+                                hub.refused(id, &e);
+                                Err(e)
+                            }
+                            Err(s) => Err(LinkError::Closed(s.message().to_string())),
                         }
-                        Ok(None) => Ok(()),
-                        Err(e) => Err(e),
-                    },
+                    }
+                    (Some(_), Ok(r)) => submit(&hub, r).await,
                 };
                 let reply = match outcome {
                     Ok(()) if refusals_only => continue,
@@ -327,6 +408,7 @@ impl Learner for LearnerService {
                     break;
                 }
             }
+            drop(leave);
         });
         Ok(Response::new(ReceiverStream::new(rx)))
     }
@@ -394,6 +476,8 @@ impl Learner for LearnerService {
             version: self.weights.borrow().version,
             steps: s.steps,
             actors: self.hub.actors().len() as u32,
+            pending: self.hub.pending() as u32,
+            skipped_updates: s.skipped_updates,
             mode: c.mode.name().to_string(),
             env: c.env.to_string(),
             algo: c.algo.name().to_string(),
@@ -414,9 +498,11 @@ pub async fn serve(
 ) -> Result<(), tonic::transport::Error> {
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<LearnerServer<LearnerService>>().await;
+    let limit = crate::size_limit::RolloutSizeLimit::new(service.hub.clone());
     service
         .access
         .server()?
+        .layer(limit)
         .add_service(health_service)
         .add_service(service.into_server())
         .serve_with_incoming_shutdown(saver_proto::incoming(listener), shutdown)

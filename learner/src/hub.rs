@@ -1,15 +1,29 @@
 //! The meeting point of actors and the trainer thread: registrations, the bounded
 //! rollout queue and the newest published weights.
 
+use crate::ledger::Ledger;
+use crate::warn::RateLimited;
 use saver_core::config::RunConfig;
 use saver_core::env::EnvLayout;
+use saver_core::limits::RolloutLimits;
 use saver_core::link::{Assignment, LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Condvar, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// How long a registration over the network may go without opening its rollout
+/// stream before it is forgotten (an actor opens it right after registering).
+pub const REGISTRATION_LEASE: Duration = Duration::from_secs(10);
+/// Registrations without a stream held at once; a newer one evicts the oldest, so a
+/// flood of bare Registers costs bounded memory and never blocks a real actor.
+pub const MAX_PENDING: usize = 256;
+/// Most env instances one actor may register.
+pub const MAX_ENVS: usize = 1024;
+/// How often a learner that waits for actors says so.
+const WAIT_REPORT: Duration = Duration::from_secs(10);
 
 /// A registered actor.
 #[derive(Clone, Debug)]
@@ -22,6 +36,13 @@ pub struct ActorInfo {
     pub n_envs: u32,
     /// Sequence number of its last accepted rollout (replays are refused).
     pub last_seq: Option<u64>,
+    /// It holds its rollout stream (in-process actors always do): only such actors
+    /// are waited for by rounds and counted as connected.
+    pub attached: bool,
+    /// When it registered.
+    pub since: Instant,
+    /// Its envs' running episodes as the learner counts them.
+    pub ledger: Ledger,
 }
 
 /// Counters of the hub, for logs and metrics.
@@ -44,6 +65,8 @@ struct State {
     weights: Arc<PolicyWeights>,
     /// Set when the run is over or the learner stops: every waiter returns this.
     closed: Option<LinkError>,
+    /// Ledgers of in-process actors resumed from a checkpoint, by id.
+    resumed: BTreeMap<u32, Ledger>,
 }
 
 /// Shared state between ingress and the trainer.
@@ -54,6 +77,10 @@ pub struct Hub {
     config_hash: String,
     /// Env layout (rollouts are checked against it).
     layout: EnvLayout,
+    /// The values a rollout may hold.
+    limits: RolloutLimits,
+    /// Refused rollouts, logged a few at a time.
+    refusals: RateLimited,
     /// Registrations, weights, closed flag.
     state: Mutex<State>,
     /// Signalled on every publish, registration and close.
@@ -81,12 +108,15 @@ impl Hub {
         let hub = Arc::new(Self {
             config_hash: config.hash(),
             layout: config.env.layout(),
+            limits: RolloutLimits::for_run(&config),
+            refusals: RateLimited::default(),
             config,
             state: Mutex::new(State {
                 actors: BTreeMap::new(),
                 next_id: 0,
                 weights: Arc::new(initial),
                 closed: None,
+                resumed: BTreeMap::new(),
             }),
             changed: Condvar::new(),
             queue: tx,
@@ -120,11 +150,33 @@ impl Hub {
         Duration::from_millis(self.round_timeout_ms.load(Ordering::Relaxed))
     }
 
-    /// Registers an actor: ids are dense and handed out in arrival order.
+    /// In-process actors resumed from a checkpoint: their next sequence numbers and
+    /// running episodes, so that their episode reports are checked as if the run had
+    /// never stopped.
+    pub fn resume_actors(&self, actors: &crate::ActorStates) {
+        self.lock().resumed = actors
+            .iter()
+            .map(|(&id, a)| (id, Ledger::resumed(a.seq, &a.running)))
+            .collect();
+    }
+
+    /// Registers an in-process actor (it is connected from the start): ids are dense
+    /// and handed out in arrival order; the session is the learner's secret for it.
     pub fn register(&self, reg: &Registration) -> Result<Assignment, LinkError> {
-        if reg.n_envs == 0 || reg.n_envs > 1024 {
+        self.admit(reg, true)
+    }
+
+    /// Registers an actor over the network: it counts once its rollout stream claims
+    /// the registration ([`Hub::attach`]); until then it is pending, and forgotten
+    /// after [`REGISTRATION_LEASE`] or when [`MAX_PENDING`] newer ones wait.
+    pub fn register_remote(&self, reg: &Registration) -> Result<Assignment, LinkError> {
+        self.admit(reg, false)
+    }
+
+    fn admit(&self, reg: &Registration, attached: bool) -> Result<Assignment, LinkError> {
+        if reg.n_envs == 0 || reg.n_envs as usize > MAX_ENVS {
             return Err(LinkError::Rejected(format!(
-                "env count {} is not in 1..=1024",
+                "env count {} is not in 1..={MAX_ENVS}",
                 reg.n_envs
             )));
         }
@@ -132,15 +184,43 @@ impl Hub {
         if let Some(why) = &s.closed {
             return Err(why.clone());
         }
+        Self::expire(&mut s);
+        let pending: Vec<u32> = s
+            .actors
+            .iter()
+            .filter(|(_, a)| !a.attached)
+            .map(|(&id, _)| id)
+            .collect();
+        if !attached && pending.len() >= MAX_PENDING {
+            // Ids ascend with time: the first is the oldest.
+            s.actors.remove(&pending[0]);
+        }
         let actor_id = s.next_id;
-        s.next_id += 1;
+        s.next_id = s.next_id.checked_add(1).ok_or_else(|| {
+            LinkError::TooLarge("this learner has handed out every actor id".into())
+        })?;
+        let session = loop {
+            // A secret from the OS-seeded CSPRNG: no other client can guess it.
+            let x: u64 = rand::random();
+            if x != 0 {
+                break x;
+            }
+        };
+        let ledger = s
+            .resumed
+            .remove(&actor_id)
+            .filter(|l| l.n_envs() == reg.n_envs as usize)
+            .unwrap_or_else(|| Ledger::fresh(reg.n_envs as usize));
         s.actors.insert(
             actor_id,
             ActorInfo {
                 name: reg.name.clone(),
-                session: reg.session,
+                session,
                 n_envs: reg.n_envs,
                 last_seq: None,
+                attached,
+                since: Instant::now(),
+                ledger,
             },
         );
         drop(s);
@@ -148,9 +228,56 @@ impl Hub {
         tracing::debug!(actor_id, name = %reg.name, "actor registered");
         Ok(Assignment {
             actor_id,
+            session,
             config: self.config.clone(),
             config_hash: self.config_hash.clone(),
         })
+    }
+
+    /// The env count of registration (`actor_id`, `session`), if it exists.
+    pub fn registered_envs(&self, actor_id: u32, session: u64) -> Option<usize> {
+        let s = self.lock();
+        let a = s.actors.get(&actor_id).filter(|a| a.session == session)?;
+        Some(a.n_envs as usize)
+    }
+
+    /// Forgets registrations whose stream never came within the lease.
+    fn expire(s: &mut State) {
+        s.actors
+            .retain(|_, a| a.attached || a.since.elapsed() < REGISTRATION_LEASE);
+    }
+
+    /// A rollout stream claims the registration (`actor_id`, `session`): from now on
+    /// the actor counts in rounds, until the stream ends ([`Hub::unregister`]). A
+    /// registration is claimed once; an unknown or expired one, or a wrong session, is
+    /// refused without saying more.
+    pub fn attach(&self, actor_id: u32, session: u64) -> Result<String, LinkError> {
+        let mut s = self.lock();
+        if let Some(why) = &s.closed {
+            return Err(why.clone());
+        }
+        Self::expire(&mut s);
+        let name = match s.actors.get_mut(&actor_id) {
+            Some(a) if a.session == session && !a.attached => {
+                a.attached = true;
+                a.name.clone()
+            }
+            Some(a) if a.session == session => {
+                return Err(LinkError::Mismatch(format!(
+                    "actor {actor_id} already has a rollout stream"
+                )))
+            }
+            _ => {
+                return Err(LinkError::Mismatch(format!(
+                    "actor {actor_id} is not registered with that session (expired or \
+                     never registered): register again"
+                )))
+            }
+        };
+        drop(s);
+        self.changed.notify_all();
+        tracing::info!(actor_id, name = %name, "actor joined");
+        Ok(name)
     }
 
     /// Forgets an actor whose connection closed (only if `session` still matches, so
@@ -162,19 +289,42 @@ impl Hub {
             .is_some_and(|a| a.session == session)
         {
             s.actors.remove(&actor_id);
-            tracing::info!(actor_id, "actor left");
+            tracing::info!(actor_id, "actor left (its rollout stream ended)");
         }
         drop(s);
         self.changed.notify_all();
     }
 
-    /// Registered actors, by id.
+    /// Connected actors (in-process, or holding their rollout stream), by id.
     pub fn actors(&self) -> BTreeMap<u32, ActorInfo> {
-        self.lock().actors.clone()
+        let mut s = self.lock();
+        Self::expire(&mut s);
+        s.actors
+            .iter()
+            .filter(|(_, a)| a.attached)
+            .map(|(&id, a)| (id, a.clone()))
+            .collect()
     }
 
-    /// Blocks until at least `n` actors are registered, the hub closes or `stop` is set.
-    pub fn wait_for_actors(&self, n: usize, stop: &AtomicBool) -> Result<(), LinkError> {
+    /// Registrations still waiting for their rollout stream.
+    pub fn pending(&self) -> usize {
+        let mut s = self.lock();
+        Self::expire(&mut s);
+        s.actors.values().filter(|a| !a.attached).count()
+    }
+
+    /// Blocks until at least `n` actors are connected, the hub closes or `stop` is set,
+    /// saying every few seconds what it waits for. With `go_ahead`, after a round
+    /// deadline with at least one actor it goes on with those it has (a learner
+    /// restarted with fewer actors back than it had).
+    pub fn wait_for_actors(
+        &self,
+        n: usize,
+        go_ahead: bool,
+        stop: &AtomicBool,
+    ) -> Result<(), LinkError> {
+        let start = Instant::now();
+        let mut said = start;
         let mut s = self.lock();
         loop {
             if let Some(why) = &s.closed {
@@ -183,8 +333,27 @@ impl Hub {
             if stop.load(Ordering::Relaxed) {
                 return Err(LinkError::Closed("the learner is stopping".into()));
             }
-            if s.actors.len() >= n {
+            Self::expire(&mut s);
+            let have = s.actors.values().filter(|a| a.attached).count();
+            if have >= n {
                 return Ok(());
+            }
+            if go_ahead && have > 0 && start.elapsed() >= self.round_timeout() {
+                tracing::warn!(
+                    "going ahead with {have} of {n} actors after the round deadline \
+                     ({:?}); more may join at any time",
+                    self.round_timeout()
+                );
+                return Ok(());
+            }
+            if said.elapsed() >= WAIT_REPORT {
+                said = Instant::now();
+                tracing::info!(
+                    "waiting for actors: {have} of {n} connected ({} registered without \
+                     a rollout stream yet), {:.0} s so far",
+                    s.actors.len() - have,
+                    start.elapsed().as_secs_f64()
+                );
             }
             s = self
                 .changed
@@ -220,24 +389,27 @@ impl Hub {
     /// `Ok(Some(rollout))` back when the queue is full. Async callers use it and only
     /// fall back to the blocking [`Hub::submit`] when the trainer is behind.
     pub fn try_submit(&self, rollout: Rollout) -> Result<Option<Rollout>, LinkError> {
-        if let Err(e) = self.check(&rollout) {
-            // A closed learner is not a refusal of the rollout: not counted or logged.
-            if !matches!(e, LinkError::Closed(_) | LinkError::Finished(_)) {
-                self.stats.rejected.fetch_add(1, Ordering::Relaxed);
-                tracing::warn!(
-                    actor = rollout.actor_id,
-                    seq = rollout.seq,
-                    "rollout refused: {e}"
-                );
+        let (ledger, verified) = match self.check(&rollout) {
+            Ok(v) => v,
+            Err(e) => {
+                // A closed learner is not a refusal of the rollout: not counted or logged.
+                if !matches!(e, LinkError::Closed(_) | LinkError::Finished(_)) {
+                    self.refused(rollout.actor_id, &e);
+                }
+                return Err(e);
             }
-            return Err(e);
-        }
+        };
         let (id, seq) = (rollout.actor_id, rollout.seq);
+        let mut rollout = rollout;
+        for (e, v) in rollout.episodes.iter_mut().zip(&verified) {
+            e.verified = *v;
+        }
         match self.queue.try_send(rollout) {
             Ok(()) => {
                 self.stats.accepted.fetch_add(1, Ordering::Relaxed);
                 if let Some(a) = self.lock().actors.get_mut(&id) {
                     a.last_seq = Some(seq);
+                    a.ledger = ledger;
                 }
                 Ok(None)
             }
@@ -248,31 +420,36 @@ impl Hub {
         }
     }
 
+    /// Counts a refused rollout (or stream) and logs it, a few lines at a time.
+    pub fn refused(&self, actor_id: u32, why: &LinkError) {
+        self.stats.rejected.fetch_add(1, Ordering::Relaxed);
+        self.refusals
+            .warn(|| format!("rollout of actor {actor_id} refused: {why}"));
+    }
+
     /// Everything a rollout must satisfy before it is queued: it comes from a
     /// registered actor and session, in sequence, at a published version, with the
-    /// run's shapes and finite values.
-    fn check(&self, r: &Rollout) -> Result<(), LinkError> {
+    /// run's shapes, values in the env's and head's ranges, and episode reports that
+    /// agree with the steps the learner counted. Returns the actor's ledger after it
+    /// and which episodes were verified.
+    fn check(&self, r: &Rollout) -> Result<(Ledger, Vec<bool>), LinkError> {
         let mismatch = |why: String| Err(LinkError::Mismatch(why));
-        {
+        let ledger = {
             let s = self.lock();
             if let Some(e) = &s.closed {
                 return Err(e.clone());
             }
-            let Some(a) = s.actors.get(&r.actor_id) else {
-                return mismatch(format!("unknown actor id {}", r.actor_id));
-            };
-            if a.session != r.session {
+            // Neither text names the registered session: it is that actor's secret.
+            let Some(a) = s.actors.get(&r.actor_id).filter(|a| a.session == r.session) else {
                 return mismatch(format!(
-                    "actor {} sent session {:x}, registered as {:x}",
-                    r.actor_id, r.session, a.session
+                    "actor {} is not registered with that session: register again",
+                    r.actor_id
                 ));
-            }
-            if a.last_seq.is_some_and(|last| r.seq <= last) {
+            };
+            if let Some(last) = a.last_seq.filter(|&last| r.seq <= last) {
                 return mismatch(format!(
-                    "actor {} sent sequence number {} after {} (a replay)",
-                    r.actor_id,
-                    r.seq,
-                    a.last_seq.unwrap_or(0)
+                    "actor {} sent sequence number {} after {last} (a replay)",
+                    r.actor_id, r.seq
                 ));
             }
             if r.policy_version > s.weights.version {
@@ -287,25 +464,25 @@ impl Hub {
                     r.actor_id, a.n_envs, r.n_envs
                 )));
             }
-        }
+            a.ledger.clone()
+        };
         if r.n_steps != self.config.rollout as usize {
             return Err(LinkError::Rejected(format!(
                 "rollout has {} steps, this run uses {}",
                 r.n_steps, self.config.rollout
             )));
         }
-        r.validate(&self.layout)
-            .map_err(|e| LinkError::Rejected(e.to_string()))?;
-        let max_len = self.config.max_episode_steps;
-        if let Some(e) = r.episodes.iter().find(|e| {
-            e.actor_id != r.actor_id || e.length == 0 || e.length > max_len || !e.ret.is_finite()
-        }) {
+        let rejected = |e: saver_core::CoreError| LinkError::Rejected(e.to_string());
+        r.validate(&self.layout).map_err(rejected)?;
+        self.limits.check(r).map_err(rejected)?;
+        if let Some(e) = r.episodes.iter().find(|e| !e.ret.is_finite()) {
             return Err(LinkError::Rejected(format!(
-                "episode report {e:?} is impossible (actor {}, lengths 1..={max_len}, finite return)",
-                r.actor_id
+                "episode report {e:?} has a return that is not finite"
             )));
         }
-        Ok(())
+        ledger
+            .check(r, self.config.max_episode_steps)
+            .map_err(rejected)
     }
 
     /// The newest weights.

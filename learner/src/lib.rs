@@ -9,11 +9,14 @@ pub mod checkpoint;
 pub mod grpc;
 mod hub;
 mod inproc;
+pub mod ledger;
 pub mod metrics;
+pub mod size_limit;
 pub mod trainer;
+pub mod warn;
 
-pub use checkpoint::{resume, ActorStates, Counters, CHECKPOINT_FILE};
-pub use hub::{Hub, HubStats, DEFAULT_ROUND_TIMEOUT};
+pub use checkpoint::{resume, ActorStates, Counters, Resumed, CHECKPOINT_FILE};
+pub use hub::{Hub, HubStats, DEFAULT_ROUND_TIMEOUT, MAX_ENVS, MAX_PENDING, REGISTRATION_LEASE};
 pub use inproc::InProcessLink;
 pub use metrics::{EpisodeWindow, MetricsRow};
 pub use trainer::{spawn_trainer, TrainerHandle, TrainerOptions, TrainerOutcome};

@@ -2,6 +2,7 @@
 //! over actor 0 alone, as the paper plotted), and metrics.csv, one row per update.
 
 use saver_core::rollout::Episode;
+use saver_proto::NamedTensor;
 use std::collections::VecDeque;
 use std::io::Write;
 use std::path::Path;
@@ -34,9 +35,9 @@ fn mean(q: &VecDeque<u32>) -> Option<f64> {
 }
 
 impl EpisodeWindow {
-    /// Adds finished episodes.
+    /// Adds finished episodes (only verified ones: see [`Episode::verified`]).
     pub fn extend(&mut self, episodes: &[Episode]) {
-        for e in episodes {
+        for e in episodes.iter().filter(|e| e.verified) {
             push(&mut self.all, e.length);
             if e.actor_id == 0 {
                 push(&mut self.actor0, e.length);
@@ -52,6 +53,51 @@ impl EpisodeWindow {
     /// Mean of actor 0's last 100.
     pub fn mean_actor0(&self) -> Option<f64> {
         mean(&self.actor0)
+    }
+
+    /// The two windows as tensors `window.all` and `window.actor0` (lengths are exact
+    /// in f32 below 2^24), for a checkpoint; the totals go in its metadata.
+    pub fn to_saved(&self) -> Vec<NamedTensor> {
+        [("window.all", &self.all), ("window.actor0", &self.actor0)]
+            .into_iter()
+            .map(|(name, q)| NamedTensor {
+                name: name.into(),
+                shape: vec![q.len()],
+                data: q.iter().map(|&x| x as f32).collect(),
+            })
+            .collect()
+    }
+
+    /// Inverse of [`EpisodeWindow::to_saved`]; missing tensors are empty windows, and
+    /// values that are no episode length are left out.
+    pub fn from_saved(
+        all: Option<&NamedTensor>,
+        actor0: Option<&NamedTensor>,
+        total: u64,
+        successes: u64,
+    ) -> Self {
+        let q = |t: Option<&NamedTensor>| -> VecDeque<u32> {
+            t.map(|t| {
+                t.data
+                    .iter()
+                    .filter(|x| x.is_finite() && **x >= 1.0 && **x < 16_777_216.0)
+                    .map(|&x| x as u32)
+                    .collect::<VecDeque<u32>>()
+            })
+            .map(|mut q| {
+                while q.len() > WINDOW {
+                    q.pop_front();
+                }
+                q
+            })
+            .unwrap_or_default()
+        };
+        Self {
+            all: q(all),
+            actor0: q(actor0),
+            total,
+            successes,
+        }
     }
 }
 
@@ -78,6 +124,8 @@ pub struct MetricsRow {
     pub lag_max: u64,
     /// Rollouts dropped so far for being too stale (or duplicates).
     pub stale_dropped: u64,
+    /// Updates skipped so far by this process for a non-finite loss or gradient.
+    pub skipped_updates: u64,
     /// The algorithm's losses and diagnostics.
     pub stats: Vec<f32>,
 }
@@ -94,7 +142,8 @@ fn opt(x: Option<f64>) -> String {
 
 impl MetricsCsv {
     /// Creates `path` and writes the header; with `append`, an existing file (a
-    /// resumed run) keeps its rows and gets the new ones after them.
+    /// resumed run, see [`truncate_after`]) keeps its rows and gets the new ones after
+    /// them.
     pub fn create(path: &Path, stat_names: &[&str], append: bool) -> std::io::Result<Self> {
         if append && path.exists() {
             let file = std::fs::OpenOptions::new().append(true).open(path)?;
@@ -106,7 +155,7 @@ impl MetricsCsv {
         write!(
             out,
             "steps,updates,wall_s,steps_per_s,mean_ep_len_100,mean_ep_len_100_actor0,episodes,\
-             lag_mean,lag_max,stale_dropped"
+             lag_mean,lag_max,stale_dropped,skipped_updates"
         )?;
         for n in stat_names {
             write!(out, ",{n}")?;
@@ -119,7 +168,7 @@ impl MetricsCsv {
     pub fn write(&mut self, r: &MetricsRow) -> std::io::Result<()> {
         write!(
             self.out,
-            "{},{},{:.3},{:.1},{},{},{},{:.2},{},{}",
+            "{},{},{:.3},{:.1},{},{},{},{:.2},{},{},{}",
             r.steps,
             r.updates,
             r.wall_s,
@@ -129,7 +178,8 @@ impl MetricsCsv {
             r.episodes,
             r.lag_mean,
             r.lag_max,
-            r.stale_dropped
+            r.stale_dropped,
+            r.skipped_updates
         )?;
         for v in &r.stats {
             write!(self.out, ",{v:e}")?;
@@ -137,6 +187,45 @@ impl MetricsCsv {
         writeln!(self.out)?;
         self.out.flush()
     }
+}
+
+/// A resumed run's metrics.csv: drops the rows written after its checkpoint (more
+/// than `steps` steps: the run goes on from the checkpoint and writes them anew) and
+/// returns how many it dropped and the largest weights version any row names (every
+/// published version has its row: the row is written before the version is
+/// published). A missing file is no rows.
+pub fn truncate_after(path: &Path, steps: u64) -> std::io::Result<(usize, u64)> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((0, 0)),
+        Err(e) => return Err(e),
+    };
+    let mut keep = String::with_capacity(text.len());
+    let (mut dropped, mut max_version) = (0, 0);
+    for (i, line) in text.lines().enumerate() {
+        let mut cols = line.split(',');
+        let row_steps = cols.next().and_then(|v| v.parse::<u64>().ok());
+        let version = cols.next().and_then(|v| v.parse::<u64>().ok());
+        // The header, and rows of the run up to its checkpoint; a half-written last row
+        // (a kill while writing) goes too.
+        match (i, row_steps, version) {
+            (0, _, _) => {}
+            (_, Some(s), Some(v)) if s <= steps => max_version = max_version.max(v),
+            (_, _, v) => {
+                max_version = max_version.max(v.unwrap_or(0));
+                dropped += 1;
+                continue;
+            }
+        }
+        keep.push_str(line);
+        keep.push('\n');
+    }
+    if dropped > 0 {
+        let tmp = path.with_extension("csv.tmp");
+        std::fs::write(&tmp, keep)?;
+        std::fs::rename(&tmp, path)?;
+    }
+    Ok((dropped, max_version))
 }
 
 #[cfg(test)]
@@ -154,6 +243,7 @@ mod tests {
             length,
             success: true,
             ret: 0.0,
+            verified: true,
         };
         w.extend(&vec![ep(1, 10); 150]);
         assert_eq!(w.mean_all(), Some(10.0));
@@ -163,5 +253,32 @@ mod tests {
         assert_eq!(w.mean_all(), Some(20.0));
         assert_eq!(w.mean_actor0(), Some(30.0));
         assert_eq!(w.total, 200);
+        // Through a checkpoint and back: the same means.
+        let saved = w.to_saved();
+        let back = EpisodeWindow::from_saved(saved.first(), saved.get(1), w.total, w.successes);
+        assert_eq!(back.mean_all(), Some(20.0));
+        assert_eq!(back.mean_actor0(), Some(30.0));
+        assert_eq!(back.total, 200);
+    }
+
+    #[test]
+    fn a_resumed_csv_loses_the_rows_after_its_checkpoint_and_names_the_last_version() {
+        let dir = std::env::temp_dir().join(format!("saver-csv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("metrics.csv");
+        // Checkpoint at 200 steps; rows at 300 and 400 (versions 3, 4) came after it,
+        // and a row cut off by a kill.
+        std::fs::write(
+            &path,
+            "steps,updates,x\n100,1,a\n200,2,b\n300,3,c\n400,4,d\n50",
+        )
+        .unwrap();
+        assert_eq!(truncate_after(&path, 200).unwrap(), (3, 4));
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "steps,updates,x\n100,1,a\n200,2,b\n"
+        );
+        assert_eq!(truncate_after(&dir.join("none.csv"), 0).unwrap(), (0, 0));
+        std::fs::remove_dir_all(dir).ok();
     }
 }

@@ -4,6 +4,7 @@
 
 use crate::checkpoint::{save, ActorStates, Counters, CHECKPOINT_FILE};
 use crate::metrics::{EpisodeWindow, MetricsCsv, MetricsRow};
+use crate::warn::RateLimited;
 use crate::Hub;
 use saver_core::algo::Algorithm;
 use saver_core::config::Mode;
@@ -37,6 +38,8 @@ pub struct TrainerOutcome {
     pub stale_dropped: u64,
     /// Whether the run stopped early on request.
     pub interrupted: bool,
+    /// Updates skipped because their batch made a loss or gradient non-finite.
+    pub skipped: u64,
 }
 
 /// The running trainer thread.
@@ -60,6 +63,8 @@ pub struct TrainerOptions {
     pub start: Counters,
     /// In-process actors as the resumed checkpoint saved them (empty for a fresh run).
     pub actors: ActorStates,
+    /// The episode window the resumed checkpoint saved (empty for a fresh run).
+    pub window: EpisodeWindow,
 }
 
 impl TrainerOptions {
@@ -72,6 +77,7 @@ impl TrainerOptions {
             checkpoint_every: 0,
             start: Counters::default(),
             actors: ActorStates::new(),
+            window: EpisodeWindow::default(),
         }
     }
 }
@@ -135,9 +141,13 @@ impl Trainer {
         let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names(), resumed)
             .map_err(|e| io("creating metrics.csv", e))?;
         let config = self.hub.config().clone();
-        let wait = self.hub.wait_for_actors(config.actors as usize, &self.stop);
-        let mut window = EpisodeWindow::default();
+        let wait = self
+            .hub
+            .wait_for_actors(config.actors as usize, resumed, &self.stop);
+        let mut window = opts.window.clone();
         let mut c = opts.start;
+        let mut skipped = 0u64;
+        let skip_warning = RateLimited::default();
         // Sync mode: the actors' states after the last round, saved with the weights
         // they lead to, so that a resumed run continues exactly.
         let mut actors = opts.actors.clone();
@@ -145,6 +155,8 @@ impl Trainer {
         let mut stale_dropped = 0u64;
         let mut interrupted = wait.is_err();
         let start = Instant::now();
+        // Training time before this process: rates go on across a resume.
+        let wall_before = opts.start.wall_ms as f64 / 1000.0;
         while !interrupted && c.steps < config.steps {
             let Some(Round {
                 rollouts: round,
@@ -160,7 +172,25 @@ impl Trainer {
                 .flat_map(|r| r.episodes.iter().copied())
                 .collect();
             let batch = Batch::from_rollouts(&round, &config.env.layout())?;
-            let stats = self.algo.update(&batch)?;
+            // A batch whose loss or gradient is not finite changed nothing: it is
+            // skipped, and the same weights go out as the next version (sync actors
+            // wait for one).
+            let stats = match self.algo.update(&batch) {
+                Ok(stats) => Some(stats),
+                Err(CoreError::NonFinite(why)) => {
+                    skipped += 1;
+                    let ids: Vec<u32> = round.iter().map(|r| r.actor_id).collect();
+                    skip_warning.warn(|| {
+                        format!(
+                            "update {} skipped ({skipped} so far): {why}; the batch came from \
+                             actors {ids:?}; the weights stay as they were",
+                            c.version + 1
+                        )
+                    });
+                    None
+                }
+                Err(e) => return Err(e),
+            };
             c.version += 1;
             if config.mode == Mode::Sync {
                 actors = round
@@ -168,45 +198,78 @@ impl Trainer {
                     .filter_map(|r| Some((r.actor_id, r.actor_state.as_deref()?.clone())))
                     .collect();
             }
-            c.steps += batch.steps;
-            self.hub.publish(Arc::new(PolicyWeights {
-                version: c.version,
-                tensors: self.algo.policy_tensors()?,
-            }));
             window.extend(&episodes);
             c.episodes += episodes.len() as u64;
-            let wall_s = start.elapsed().as_secs_f64();
-            let row = MetricsRow {
-                steps: c.steps,
-                updates: c.version,
-                wall_s,
-                steps_per_s: c.steps as f64 / wall_s.max(1e-9),
-                mean_ep_len_100: window.mean_all(),
-                mean_ep_len_100_actor0: window.mean_actor0(),
-                episodes: c.episodes,
-                lag_mean,
-                lag_max,
-                stale_dropped,
-                stats: stats.values,
-            };
-            csv.write(&row).map_err(|e| io("writing metrics.csv", e))?;
-            if let Some(tx) = &opts.rows {
-                let _ = tx.send(row);
+            let wall_s = wall_before + start.elapsed().as_secs_f64();
+            c.wall_ms = (wall_s * 1000.0) as u64;
+            if let Some(stats) = stats {
+                c.steps += batch.steps;
+                let row = MetricsRow {
+                    steps: c.steps,
+                    updates: c.version,
+                    wall_s,
+                    steps_per_s: c.steps as f64 / wall_s.max(1e-9),
+                    mean_ep_len_100: window.mean_all(),
+                    mean_ep_len_100_actor0: window.mean_actor0(),
+                    episodes: c.episodes,
+                    lag_mean,
+                    lag_max,
+                    stale_dropped,
+                    skipped_updates: skipped,
+                    stats: stats.values,
+                };
+                // The row before the version: a resumed run learns from metrics.csv
+                // the newest version any client can have seen.
+                csv.write(&row).map_err(|e| io("writing metrics.csv", e))?;
+                if let Some(tx) = &opts.rows {
+                    let _ = tx.send(row);
+                }
             }
+            let tensors = self.algo.policy_tensors()?;
+            if let Some(t) = tensors
+                .iter()
+                .find(|t| t.data.iter().any(|x| !x.is_finite()))
+            {
+                // The optimiser never writes a non-finite value; this would be a bug.
+                return Err(CoreError::Diverged(format!(
+                    "{} is not finite after update {}; not published",
+                    t.name, c.version
+                )));
+            }
+            self.hub.publish(Arc::new(PolicyWeights {
+                version: c.version,
+                tensors,
+            }));
             if opts.checkpoint_every > 0 && c.version.is_multiple_of(opts.checkpoint_every) {
-                save(&checkpoint, self.algo.as_ref(), &c, &actors, &config)?;
+                save(
+                    &checkpoint,
+                    self.algo.as_ref(),
+                    &c,
+                    &actors,
+                    &window,
+                    &config,
+                )?;
             }
         }
-        save(&checkpoint, self.algo.as_ref(), &c, &actors, &config)?;
+        c.wall_ms = ((wall_before + start.elapsed().as_secs_f64()) * 1000.0) as u64;
+        save(
+            &checkpoint,
+            self.algo.as_ref(),
+            &c,
+            &actors,
+            &window,
+            &config,
+        )?;
         Ok(TrainerOutcome {
             version: c.version,
             steps: c.steps,
-            wall_s: start.elapsed().as_secs_f64(),
+            wall_s: c.wall_ms as f64 / 1000.0,
             checkpoint,
             metrics: metrics_path,
             mean_ep_len_100: window.mean_all(),
             stale_dropped,
             interrupted,
+            skipped,
         })
     }
 

@@ -92,6 +92,12 @@ impl PcpnStore {
         Self { dir: dir.into() }
     }
 
+    /// Removes the temporary files a killed writer left in the store (see
+    /// [`checkpoint::remove_stale_temporaries`]); a store's owner calls it at start-up.
+    pub fn remove_stale_temporaries(&self) -> usize {
+        checkpoint::remove_stale_temporaries(&self.dir)
+    }
+
     /// Where the PCPN of `spec` lives.
     pub fn path_for(&self, spec: &EnvSpec) -> PathBuf {
         self.dir.join(format!("pcpn-{spec}.safetensors"))

@@ -195,7 +195,10 @@ fn pcpn_is_pretrained_once_reused_and_refused_for_another_env() {
     assert!(t.contains("Using the cached PCPN"), "{t}");
 
     // A PCPN for d = 2 is refused for a d = 4 run, with the reason.
-    let o = train_saver(&run, &["--dim", "4", "--pcpn", file.to_str().unwrap()]);
+    let o = train_saver(
+        &dir.join("run4"),
+        &["--dim", "4", "--pcpn", file.to_str().unwrap()],
+    );
     let t = text(&o);
     assert!(!o.status.success());
     assert!(

@@ -174,10 +174,11 @@ fn an_actor_reports_each_timeout_with_the_observation_it_reached() {
     let mut policy = saver_core::nets::Policy::new(weights, layout, config.head).unwrap();
     let assignment = saver_core::link::Assignment {
         actor_id: 0,
+        session: 1,
         config_hash: config.hash(),
         config,
     };
-    let r = saver_actor::Actor::new(&assignment, 1, 1).collect(&mut policy);
+    let r = saver_actor::Actor::new(&assignment, 1).collect(&mut policy);
     r.validate(&layout).unwrap();
     assert_eq!(r.timeouts, vec![2, 5]);
     let d = layout.obs_dim;
@@ -285,7 +286,7 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
     let v0 = slow.weights(0).unwrap();
     assert_eq!(v0.version, 0);
     let mut policy = saver_core::nets::Policy::new(v0, config.env.layout(), config.head).unwrap();
-    let old = saver_actor::Actor::new(&assignment, 9, 1).collect(&mut policy);
+    let old = saver_actor::Actor::new(&assignment, 1).collect(&mut policy);
     let actors: Vec<_> = (0..2)
         .map(|i| {
             let mut link = saver_learner::InProcessLink::new(hub.clone());

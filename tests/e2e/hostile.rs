@@ -37,11 +37,8 @@ fn floats(r: &mut pb::Rollout, k: usize) -> &mut Vec<f32> {
 fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Code) {
     let mut r = base.clone();
     r.seq = 6 + i as u64;
-    let kind = if i % 20_000 == 19_999 {
-        99
-    } else {
-        rng.random_range(0..12)
-    };
+    // (A message over the size cap ends the stream: abuse::unreadable_or_oversized_….)
+    let kind = rng.random_range(0..12);
     let code = match kind {
         0 => {
             // A shorter array (done included).
@@ -139,11 +136,7 @@ fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Cod
             }
             Code::InvalidArgument
         }
-        _ => {
-            // Over the learner's size cap (but under the message limit).
-            r.obs = vec![0.0; saver_core::wire::MAX_ROLLOUT_VALUES + 1];
-            Code::ResourceExhausted
-        }
+        _ => unreachable!("kinds are 0..12"),
     };
     (r, code)
 }
@@ -152,7 +145,7 @@ const SESSION: u64 = 0x5eed;
 
 /// Registers a client with the learner at `url` and makes one real rollout (seq 5) of
 /// that actor stepping the env with the current weights.
-async fn register_and_roll(
+pub async fn register_and_roll(
     url: &str,
     hub: &saver_learner::Hub,
     config: &RunConfig,
@@ -172,10 +165,11 @@ async fn register_and_roll(
         .into_inner();
     let assignment = Assignment {
         actor_id: reply.actor_id,
+        session: reply.session,
         config: config.clone(),
         config_hash: reply.config_hash,
     };
-    let mut actor = Actor::new(&assignment, SESSION, 1);
+    let mut actor = Actor::new(&assignment, 1);
     let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
     let mut good = actor.collect(&mut policy);
     good.seq = 5;
@@ -183,7 +177,7 @@ async fn register_and_roll(
 }
 
 /// Opens StreamRollouts as `base`'s actor (asking for refusals only if `refusals`).
-async fn open_stream(
+pub async fn open_stream(
     client: &mut LearnerClient<tonic::transport::Channel>,
     base: &pb::Rollout,
     refusals: bool,
@@ -204,8 +198,23 @@ async fn open_stream(
 
 /// A learner (A2C, angle d = 2, sync, one actor) served on 127.0.0.1:0: its config,
 /// output dir, runtime, handle (kept alive by the caller), hub and URL.
-fn one_actor_learner(
+pub fn one_actor_learner(
     name: &str,
+) -> (
+    RunConfig,
+    std::path::PathBuf,
+    tokio::runtime::Runtime,
+    saver::train::LocalLearner,
+    Arc<saver_learner::Hub>,
+    String,
+) {
+    learner_with(name, |_| {})
+}
+
+/// [`one_actor_learner`] with `change` applied to its config.
+pub fn learner_with(
+    name: &str,
+    change: impl FnOnce(&mut RunConfig),
 ) -> (
     RunConfig,
     std::path::PathBuf,
@@ -217,6 +226,7 @@ fn one_actor_learner(
     let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
     config.actors = 1;
     config.steps = 1_000_000;
+    change(&mut config);
     let dir = temp_dir(name);
     let rt = tokio::runtime::Runtime::new().unwrap();
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();

@@ -1,5 +1,6 @@
 //! End-to-end tests: the `saver` binary as a user runs it, and whole training runs.
 
+mod abuse;
 mod cli;
 mod faults;
 mod grpc;

@@ -109,13 +109,16 @@ impl Algorithm for A2c {
         let policy_loss = (logp * advantage)?.mean_all()?.neg()?;
         let value_loss = ((value - returns)?.sqr()?.mean_all()? * self.value_coef)?;
         let loss = (&policy_loss + &value_loss)?;
+        // Checked before the step: a non-finite loss changes nothing.
+        let policy_loss = check_finite("policy_loss", policy_loss.to_scalar::<f32>()?)?;
+        let value_loss_v = check_finite("value_loss", value_loss.to_scalar::<f32>()?)?;
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         Ok(UpdateStats {
             values: vec![
-                check_finite("policy_loss", policy_loss.to_scalar::<f32>()?)?,
-                check_finite("value_loss", value_loss.to_scalar::<f32>()?)?,
+                policy_loss,
+                value_loss_v,
                 mu_abs_max,
                 log_std_mean,
                 grad_norm,

@@ -29,7 +29,9 @@ pub struct UpdateStats {
 pub trait Algorithm: Send {
     /// Names of the values in [`UpdateStats`] (CSV columns).
     fn stat_names(&self) -> &'static [&'static str];
-    /// One update from a batch.
+    /// One update from a batch. [`CoreError::NonFinite`] when the batch makes a loss
+    /// or gradient non-finite: then nothing changed (weights, optimiser slots and step
+    /// count are as before) and the caller may go on with the next batch.
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats>;
     /// The agent's weights (`agent.*`), what actors need.
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>>;
@@ -117,12 +119,13 @@ pub(crate) fn timeout_ends(
     Ok(Some(batch.timeout_ends(&v, c)))
 }
 
-/// Fails with a clear error when a loss is not finite.
+/// A non-finite loss is [`CoreError::NonFinite`]: the update is skipped before it
+/// changes anything.
 pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
     if v.is_finite() {
         Ok(v)
     } else {
-        Err(CoreError::Diverged(format!("{name} is {v}")))
+        Err(CoreError::NonFinite(format!("{name} is {v}")))
     }
 }
 

@@ -253,18 +253,15 @@ impl Algorithm for Saver {
             let raw = out.mu_raw.narrow(0, 0, b)?;
             loss = (loss + mu_raw_penalty(&raw, self.cfg.mu_raw_penalty)?)?;
         }
+        // Checked before the step: a non-finite loss changes nothing.
+        let actor = check_finite("actor_loss", actor)?;
+        let mon = check_finite("mon_loss", mon)?;
+        let critic = check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?;
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         Ok(UpdateStats {
-            values: vec![
-                check_finite("actor_loss", actor)?,
-                check_finite("mon_loss", mon)?,
-                check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
-                mu_abs_max,
-                log_std_mean,
-                grad_norm,
-            ],
+            values: vec![actor, mon, critic, mu_abs_max, log_std_mean, grad_norm],
         })
     }
 

@@ -119,6 +119,32 @@ impl EnvSpec {
         }
     }
 
+    /// What this preset's observations and steps can hold (the learner refuses
+    /// rollouts outside it).
+    pub fn bounds(&self) -> EnvBounds {
+        let d = self.dim;
+        match self.kind {
+            // Positions stay in the cube; a step moves each coordinate by at most
+            // 0.1 (angle: 0.1·|sin φ|, 0.1·|cos φ|; select: 0.1 on one coordinate).
+            EnvKind::Angle | EnvKind::Select => EnvBounds {
+                obs_low: vec![-1.0; d],
+                obs_high: vec![1.0; d],
+                max_change: 0.1,
+            },
+            // obs = [goal in [-1, 1]^2, angles in [-π, π), hand in [-2, 2]^2]. Each
+            // joint turns by at most 0.02π per step; the hand moves by at most its
+            // lever arm times that: 2·0.02π (joint 1) + 1·0.02π (joint 2) < 0.19.
+            EnvKind::Arm => {
+                let pi = std::f32::consts::PI;
+                EnvBounds {
+                    obs_low: vec![-1.0, -1.0, -pi, -pi, -2.0, -2.0],
+                    obs_high: vec![1.0, 1.0, pi, pi, 2.0, 2.0],
+                    max_change: 0.19,
+                }
+            }
+        }
+    }
+
     /// A fresh environment instance with the default goal.
     pub fn make(&self, max_steps: u32) -> Box<dyn Env> {
         match self.kind {
@@ -161,6 +187,19 @@ impl EnvLayout {
     pub fn pcpn_input_dim(&self) -> usize {
         self.obs_dim + self.mu_dim() + self.log_std_dim()
     }
+}
+
+/// The values an environment can produce, as data: the bounds of each observation
+/// entry and the largest change of a state-aligned coordinate in one step (which
+/// bounds the vector reward too: ||p - g| - |p' - g|| <= |p' - p|).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EnvBounds {
+    /// Smallest value of each observation entry.
+    pub obs_low: Vec<f32>,
+    /// Largest value of each observation entry.
+    pub obs_high: Vec<f32>,
+    /// Largest |p' - p| of one aligned coordinate in one step.
+    pub max_change: f32,
 }
 
 /// The result of one environment step.
