@@ -31,6 +31,23 @@ pub struct TokenArgs {
     pub token_file: Option<PathBuf>,
 }
 
+/// Warns when a token file can be read by other users of the machine.
+fn warn_if_readable_by_others(path: &std::path::Path) {
+    use std::os::unix::fs::PermissionsExt;
+    if let Ok(m) = std::fs::metadata(path) {
+        let mode = m.permissions().mode();
+        if mode & 0o044 != 0 {
+            tracing::warn!(
+                "the token file {} is readable by other users (mode {:o}); \
+                 `chmod 600 {}` keeps the token yours",
+                path.display(),
+                mode & 0o777,
+                path.display()
+            );
+        }
+    }
+}
+
 impl TokenArgs {
     /// The token, if one was given.
     pub fn token(&self) -> Result<Option<String>> {
@@ -39,6 +56,7 @@ impl TokenArgs {
             (None, Some(path)) => {
                 let text = std::fs::read_to_string(path)
                     .with_context(|| format!("reading the token file {}", path.display()))?;
+                warn_if_readable_by_others(path);
                 Some(text.lines().next().unwrap_or("").trim().to_string())
             }
             (None, None) => None,

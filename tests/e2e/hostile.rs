@@ -244,19 +244,26 @@ fn a_stream_that_asks_for_refusals_only_hears_of_nothing_else() {
     let (config, dir, rt, _learner, hub, url) = one_actor_learner("refusals");
     let acks: Vec<pb::RolloutAck> = rt.block_on(async {
         let (mut client, base) = register_and_roll(&url, &hub, &config).await;
-        let (tx, acks) = open_stream(&mut client, &base, true).await;
+        let (tx, mut acks) = open_stream(&mut client, &base, true).await;
         let mut bad = base.clone();
         bad.seq = 6;
         bad.obs[0] = f32::NAN;
         tx.send(base).await.unwrap();
         tx.send(bad).await.unwrap();
+        let mut got = vec![acks.next().await.unwrap().unwrap()];
+        // The actor counts while its stream is open: the good rollout trains first.
+        let h = hub.clone();
+        let v = tokio::task::spawn_blocking(move || h.wait_weights(1).unwrap().version);
+        assert_eq!(v.await.unwrap(), 1);
         drop(tx);
-        acks.map(|a| a.unwrap()).collect().await
+        while let Some(a) = acks.next().await {
+            got.push(a.unwrap());
+        }
+        got
     });
     assert_eq!(acks.len(), 1, "{acks:?}");
     assert_eq!((acks[0].seq, acks[0].accepted), (6, false));
     assert_eq!(Code::from(acks[0].code), Code::InvalidArgument);
-    assert_eq!(hub.wait_weights(1).unwrap().version, 1);
     assert_eq!(hub.stats.accepted.load(Ordering::Relaxed), 1);
     hub.close("test over");
     std::fs::remove_dir_all(dir).ok();
