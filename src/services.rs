@@ -167,7 +167,6 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         }
         (Algo::Saver, file) => {
             let store = PcpnStore::new(&args.pcpn_dir);
-            store.remove_stale_temporaries();
             Some(obtain_pcpn(&config, &store, file.map(Path::new))?.0)
         }
     };

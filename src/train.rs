@@ -12,7 +12,7 @@ use saver_core::config::{Algo, RunConfig};
 use saver_core::link::{PolicyWeights, Registration};
 use saver_core::nets::Pcpn;
 use saver_learner::{
-    spawn_trainer, ActorStates, Counters, Hub, InProcessLink, MetricsRow, Resumed, TrainerHandle,
+    spawn_trainer, ActorStates, Counters, Hub, InProcessLink, MetricsRow, TrainerHandle,
     TrainerOptions, TrainerOutcome,
 };
 use saver_pcpn_trainer::PcpnStore;
@@ -69,11 +69,7 @@ pub fn train(
     saver_learner::checkpoint::check_settings(out, config)
         .with_context(|| format!("resuming from {}", out.display()))?;
     let pcpn = match config.algo {
-        Algo::Saver => {
-            let store = PcpnStore::new(pcpn_dir);
-            store.remove_stale_temporaries();
-            Some(obtain_pcpn(config, &store, pcpn_file)?.0)
-        }
+        Algo::Saver => Some(obtain_pcpn(config, &PcpnStore::new(pcpn_dir), pcpn_file)?.0),
         Algo::A2c => None,
     };
     let outcome = train_with(config, out, pcpn, stop, show)?;
@@ -119,12 +115,9 @@ pub fn start_learner(
         .with_context(|| format!("creating run folder {}", out.display()))?;
     std::fs::write(out.join("config.toml"), to_toml(config)).context("writing config.toml")?;
     saver_core::checkpoint::remove_stale_temporaries(out);
-    let Resumed {
-        counters: mut start,
-        actors,
-        window,
-    } = resumed.unwrap_or_default();
-    if start != Counters::default() {
+    let mut state = resumed.unwrap_or_default();
+    let start = &mut state.counters;
+    if *start != Counters::default() {
         let csv = out.join("metrics.csv");
         let (dropped, newest) = saver_learner::metrics::truncate_after(&csv, start.steps)
             .with_context(|| format!("reading {}", csv.display()))?;
@@ -150,15 +143,15 @@ pub fn start_learner(
         version: start.version,
         tensors: algo.policy_tensors()?,
     };
+    let start = *start;
     let (hub, rx) = Hub::new(config.clone(), initial, 2 * config.actors as usize);
-    hub.resume_actors(&actors);
+    hub.resume_actors(&state.actors);
+    let actors = Arc::new(state.actors.clone());
     let (row_tx, rows) = mpsc::channel::<MetricsRow>();
     let opts = TrainerOptions {
         rows: Some(row_tx),
         checkpoint_every,
-        start,
-        actors: actors.clone(),
-        window,
+        start: state,
         ..TrainerOptions::new(out.to_path_buf(), stop)
     };
     let trainer = spawn_trainer(algo, hub.clone(), rx, opts)?;
@@ -167,7 +160,7 @@ pub fn start_learner(
         trainer,
         rows,
         start,
-        actors: Arc::new(actors),
+        actors,
     })
 }
 

@@ -60,7 +60,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 
 /// Removes the temporaries [`write_atomic`] left in `dir` when its process was killed
 /// mid-write (`.<name>.tmp-<pid>` of a pid that no longer runs here, or older than a
-/// day); returns how many it removed. A live writer's temporary is kept.
+/// day); returns how many it removed. A live writer's temporary is kept, this
+/// process's included (one left by an earlier process of the same pid, as in a
+/// restarted container, is overwritten by the next write of that file).
 pub fn remove_stale_temporaries(dir: &Path) -> usize {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
@@ -82,7 +84,7 @@ pub fn remove_stale_temporaries(dir: &Path) -> usize {
             .ok()
             .and_then(|t| t.elapsed().ok())
             .is_some_and(|age| age.as_secs() > 24 * 3600);
-        let alive = pid != std::process::id() && Path::new(&format!("/proc/{pid}")).exists();
+        let alive = Path::new(&format!("/proc/{pid}")).exists();
         if (old || !alive) && std::fs::remove_file(entry.path()).is_ok() {
             tracing::info!(
                 "removed {}, left by a killed writer",

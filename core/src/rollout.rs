@@ -180,6 +180,12 @@ impl Rollout {
                 self.episodes.len()
             )));
         }
+        if let Some(i) = self.episodes.iter().position(|e| !e.ret.is_finite()) {
+            return Err(CoreError::Data(format!(
+                "rollout episodes[{i}] has return {} (not finite)",
+                self.episodes[i].ret
+            )));
+        }
         self.validate_timeouts(layout.obs_dim)
     }
 

@@ -27,9 +27,10 @@ pub struct Counters {
     pub wall_ms: u64,
 }
 
-/// What a resumed run starts from.
+/// Where a run stands besides its algorithm: what a checkpoint saves with it and a
+/// resumed run starts from.
 #[derive(Clone, Debug, Default)]
-pub struct Resumed {
+pub struct RunState {
     /// Counters.
     pub counters: Counters,
     /// Saved in-process actors.
@@ -48,7 +49,7 @@ pub fn resume(
     run_dir: &Path,
     config: &RunConfig,
     algo: &mut dyn Algorithm,
-) -> Result<Option<Resumed>> {
+) -> Result<Option<RunState>> {
     let path = run_dir.join(CHECKPOINT_FILE);
     if !path.exists() {
         return Ok(None);
@@ -121,7 +122,7 @@ pub fn resume(
         let state = ActorState::from_rows(&t.shape, &t.data, env_len, obs_len, rng, seq)?;
         actors.insert(id, state);
     }
-    Ok(Some(Resumed {
+    Ok(Some(RunState {
         counters,
         actors,
         window,
@@ -129,15 +130,18 @@ pub fn resume(
 }
 
 /// Refuses `run_dir` when its checkpoint belongs to a run of other settings (no
-/// checkpoint: a fresh run, accepted). Reads only; call it before writing anything there.
+/// checkpoint: a fresh run, accepted). Reads only the checkpoint's header; call it
+/// before writing anything there.
 pub fn check_settings(run_dir: &Path, config: &RunConfig) -> Result<()> {
     let path = run_dir.join(CHECKPOINT_FILE);
     if !path.exists() {
         return Ok(());
     }
-    let c = checkpoint::load(&path)?;
-    let saved = c.meta.get("config").cloned().unwrap_or_default();
-    same_settings(&path, &saved, config)
+    let unreadable = |e: String| CoreError::Checkpoint(format!("{}: {e}", path.display()));
+    let file = std::fs::File::open(&path).map_err(|e| unreadable(e.to_string()))?;
+    let meta = saver_proto::read_metadata(std::io::BufReader::new(file))
+        .map_err(|e| unreadable(e.to_string()))?;
+    same_settings(&path, meta.get("config").map_or("", String::as_str), config)
 }
 
 /// Every setting must match but the length of the run: resuming with more steps

@@ -101,11 +101,24 @@ fn actor_metadata(m: &tonic::metadata::MetadataMap) -> Option<(u32, u64)> {
     Some((u32::try_from(get(ACTOR_ID_KEY)?).ok()?, get(SESSION_KEY)?))
 }
 
-/// Unregisters an actor when its rollout stream's task ends, however it ends.
+/// A stream's claim on a registration: made by [`Hub::attach`] (a quick lock, so on
+/// the runtime like [`Hub::try_submit`]), released when the stream's task ends,
+/// however it ends.
 struct Leave {
     hub: Arc<Hub>,
     id: u32,
     session: u64,
+}
+
+impl Leave {
+    fn attach(hub: &Arc<Hub>, (id, session): (u32, u64)) -> Result<Self, LinkError> {
+        hub.attach(id, session)?;
+        Ok(Self {
+            hub: hub.clone(),
+            id,
+            session,
+        })
+    }
 }
 
 impl Drop for Leave {
@@ -146,7 +159,8 @@ fn inbound_error(s: &Status) -> Option<Status> {
     let m = s.message();
     if s.code() == tonic::Code::ResourceExhausted {
         Some(s.clone())
-    } else if s.code() == tonic::Code::OutOfRange || m.contains("too large") {
+    } else if s.code() == tonic::Code::OutOfRange {
+        // tonic's own limit (the server-wide MAX_MESSAGE_BYTES).
         Some(Status::resource_exhausted(format!(
             "rollout message over the size limit: {m}"
         )))
@@ -156,14 +170,6 @@ fn inbound_error(s: &Status) -> Option<Status> {
         )))
     } else {
         None
-    }
-}
-
-/// The link error a stream-ending status stands for (for the refusal count and log).
-fn status_link(s: &Status) -> LinkError {
-    match s.code() {
-        tonic::Code::ResourceExhausted => LinkError::TooLarge(s.message().to_string()),
-        _ => LinkError::Rejected(s.message().to_string()),
     }
 }
 
@@ -306,25 +312,19 @@ impl Learner for LearnerService {
         // The actor names its registration in metadata: the stream claims it (the
         // actor counts in rounds from now on) and leaves the rounds when it closes. A
         // client that names none claims it with its first rollout.
-        let mut owner = actor_metadata(req.metadata());
-        if let Some((id, session)) = owner {
-            let hub = self.hub.clone();
-            blocking(move || hub.attach(id, session))
-                .await?
-                .map_err(link_status)?;
-        }
+        let owner = actor_metadata(req.metadata());
+        let mut leave = owner
+            .map(|o| Leave::attach(&self.hub, o))
+            .transpose()
+            .map_err(link_status)?;
         let refusals_only =
             req.metadata().get(ACKS_KEY).and_then(|v| v.to_str().ok()) == Some(ACKS_REFUSALS);
         let mut inbound = req.into_inner();
         let (tx, rx) = mpsc::channel(32);
         let hub = self.hub.clone();
         tokio::spawn(async move {
-            let mut leave = owner.map(|(id, session)| Leave {
-                hub: hub.clone(),
-                id,
-                session,
-            });
             while let Some(msg) = inbound.next().await {
+                let owner = leave.as_ref().map(|l| (l.id, l.session));
                 let msg = match msg {
                     Ok(m) => m,
                     Err(status) => {
@@ -332,7 +332,7 @@ impl Learner for LearnerService {
                         // with the status that says so (counted and logged); a client
                         // that went away just ends it.
                         if let Some(s) = inbound_error(&status) {
-                            hub.refused(owner.map_or(u32::MAX, |o| o.0), &status_link(&s));
+                            hub.refused(owner.map(|o| o.0), &s);
                             let _ = tx.send(Err(s)).await;
                         } else {
                             tracing::debug!("rollout stream ended: {status}");
@@ -341,46 +341,34 @@ impl Learner for LearnerService {
                     }
                 };
                 let seq = msg.seq;
+                // Refusals before the hub's checks are counted here; the hub counts its own.
                 let outcome = match (owner, Rollout::try_from(msg)) {
-                    (_, Err(e)) => {
-                        let e = match e {
-                            CoreError::TooLarge(why) => LinkError::TooLarge(why),
-                            e => LinkError::Rejected(e.to_string()),
-                        };
-                        hub.refused(owner.map_or(u32::MAX, |o| o.0), &e);
-                        Err(e)
-                    }
+                    (_, Err(e)) => Err(match e {
+                        CoreError::TooLarge(why) => LinkError::TooLarge(why),
+                        e => LinkError::Rejected(e.to_string()),
+                    }),
                     (Some((id, session)), Ok(r)) if (r.actor_id, r.session) != (id, session) => {
-                        let e = LinkError::Mismatch(format!(
+                        Err(LinkError::Mismatch(format!(
                             "this stream belongs to actor {id}; a rollout of actor {} with \
                              another session is refused",
                             r.actor_id
-                        ));
-                        hub.refused(id, &e);
+                        )))
+                    }
+                    (Some(_), Ok(r)) => Ok(r),
+                    // The first rollout of an unnamed stream claims its registration.
+                    (None, Ok(r)) => Leave::attach(&hub, (r.actor_id, r.session)).map(|l| {
+                        leave = Some(l);
+                        r
+                    }),
+                };
+                let outcome = match outcome {
+                    Ok(r) => submit(&hub, r).await,
+                    Err(e) => {
+                        if !matches!(e, LinkError::Closed(_) | LinkError::Finished(_)) {
+                            hub.refused(owner.map(|o| o.0), &e);
+                        }
                         Err(e)
                     }
-                    (None, Ok(r)) => {
-                        // The first rollout of an unnamed stream claims its registration.
-                        let (id, session) = (r.actor_id, r.session);
-                        let h = hub.clone();
-                        match blocking(move || h.attach(id, session)).await {
-                            Ok(Ok(_)) => {
-                                owner = Some((id, session));
-                                leave = Some(Leave {
-                                    hub: hub.clone(),
-                                    id,
-                                    session,
-                                });
-                                submit(&hub, r).await
-                            }
-                            Ok(Err(e)) => {
-                                hub.refused(id, &e);
-                                Err(e)
-                            }
-                            Err(s) => Err(LinkError::Closed(s.message().to_string())),
-                        }
-                    }
-                    (Some(_), Ok(r)) => submit(&hub, r).await,
                 };
                 let reply = match outcome {
                     Ok(()) if refusals_only => continue,
@@ -408,6 +396,7 @@ impl Learner for LearnerService {
                     break;
                 }
             }
+            // The claim ends with the stream.
             drop(leave);
         });
         Ok(Response::new(ReceiverStream::new(rx)))

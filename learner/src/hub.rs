@@ -8,7 +8,7 @@ use saver_core::env::EnvLayout;
 use saver_core::limits::RolloutLimits;
 use saver_core::link::{Assignment, LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Condvar, Mutex};
@@ -26,23 +26,23 @@ pub const MAX_ENVS: usize = 1024;
 const WAIT_REPORT: Duration = Duration::from_secs(10);
 
 /// A registered actor.
-#[derive(Clone, Debug)]
-pub struct ActorInfo {
+#[derive(Debug)]
+struct ActorInfo {
     /// Name it gave.
-    pub name: String,
+    name: String,
     /// Its session.
-    pub session: u64,
+    session: u64,
     /// Env instances per rollout.
-    pub n_envs: u32,
+    n_envs: u32,
     /// Sequence number of its last accepted rollout (replays are refused).
-    pub last_seq: Option<u64>,
+    last_seq: Option<u64>,
     /// It holds its rollout stream (in-process actors always do): only such actors
     /// are waited for by rounds and counted as connected.
-    pub attached: bool,
+    attached: bool,
     /// When it registered.
-    pub since: Instant,
+    since: Instant,
     /// Its envs' running episodes as the learner counts them.
-    pub ledger: Ledger,
+    ledger: Ledger,
 }
 
 /// Counters of the hub, for logs and metrics.
@@ -185,15 +185,16 @@ impl Hub {
             return Err(why.clone());
         }
         Self::expire(&mut s);
-        let pending: Vec<u32> = s
-            .actors
-            .iter()
-            .filter(|(_, a)| !a.attached)
-            .map(|(&id, _)| id)
-            .collect();
-        if !attached && pending.len() >= MAX_PENDING {
-            // Ids ascend with time: the first is the oldest.
-            s.actors.remove(&pending[0]);
+        if !attached && Self::count_pending(&s) >= MAX_PENDING {
+            // Ids ascend with time: the first pending one is the oldest.
+            if let Some(oldest) = s
+                .actors
+                .iter()
+                .find(|(_, a)| !a.attached)
+                .map(|(&id, _)| id)
+            {
+                s.actors.remove(&oldest);
+            }
         }
         let actor_id = s.next_id;
         s.next_id = s.next_id.checked_add(1).ok_or_else(|| {
@@ -295,14 +296,14 @@ impl Hub {
         self.changed.notify_all();
     }
 
-    /// Connected actors (in-process, or holding their rollout stream), by id.
-    pub fn actors(&self) -> BTreeMap<u32, ActorInfo> {
+    /// Ids of the connected actors (in-process, or holding their rollout stream).
+    pub fn actors(&self) -> BTreeSet<u32> {
         let mut s = self.lock();
         Self::expire(&mut s);
         s.actors
             .iter()
             .filter(|(_, a)| a.attached)
-            .map(|(&id, a)| (id, a.clone()))
+            .map(|(&id, _)| id)
             .collect()
     }
 
@@ -310,6 +311,10 @@ impl Hub {
     pub fn pending(&self) -> usize {
         let mut s = self.lock();
         Self::expire(&mut s);
+        Self::count_pending(&s)
+    }
+
+    fn count_pending(s: &State) -> usize {
         s.actors.values().filter(|a| !a.attached).count()
     }
 
@@ -334,7 +339,8 @@ impl Hub {
                 return Err(LinkError::Closed("the learner is stopping".into()));
             }
             Self::expire(&mut s);
-            let have = s.actors.values().filter(|a| a.attached).count();
+            let waiting = Self::count_pending(&s);
+            let have = s.actors.len() - waiting;
             if have >= n {
                 return Ok(());
             }
@@ -349,9 +355,8 @@ impl Hub {
             if said.elapsed() >= WAIT_REPORT {
                 said = Instant::now();
                 tracing::info!(
-                    "waiting for actors: {have} of {n} connected ({} registered without \
-                     a rollout stream yet), {:.0} s so far",
-                    s.actors.len() - have,
+                    "waiting for actors: {have} of {n} connected ({waiting} registered \
+                     without a rollout stream yet), {:.0} s so far",
                     start.elapsed().as_secs_f64()
                 );
             }
@@ -394,7 +399,7 @@ impl Hub {
             Err(e) => {
                 // A closed learner is not a refusal of the rollout: not counted or logged.
                 if !matches!(e, LinkError::Closed(_) | LinkError::Finished(_)) {
-                    self.refused(rollout.actor_id, &e);
+                    self.refused(Some(rollout.actor_id), &e);
                 }
                 return Err(e);
             }
@@ -420,11 +425,14 @@ impl Hub {
         }
     }
 
-    /// Counts a refused rollout (or stream) and logs it, a few lines at a time.
-    pub fn refused(&self, actor_id: u32, why: &LinkError) {
+    /// Counts a refused rollout (or stream: `actor` when it named one) and logs it,
+    /// a few lines at a time.
+    pub fn refused(&self, actor: Option<u32>, why: &dyn std::fmt::Display) {
         self.stats.rejected.fetch_add(1, Ordering::Relaxed);
-        self.refusals
-            .warn(|| format!("rollout of actor {actor_id} refused: {why}"));
+        self.refusals.warn(|| match actor {
+            Some(id) => format!("rollout of actor {id} refused: {why}"),
+            None => format!("rollout refused: {why}"),
+        });
     }
 
     /// Everything a rollout must satisfy before it is queued: it comes from a
@@ -475,11 +483,6 @@ impl Hub {
         let rejected = |e: saver_core::CoreError| LinkError::Rejected(e.to_string());
         r.validate(&self.layout).map_err(rejected)?;
         self.limits.check(r).map_err(rejected)?;
-        if let Some(e) = r.episodes.iter().find(|e| !e.ret.is_finite()) {
-            return Err(LinkError::Rejected(format!(
-                "episode report {e:?} has a return that is not finite"
-            )));
-        }
         ledger
             .check(r, self.config.max_episode_steps)
             .map_err(rejected)

@@ -15,7 +15,7 @@ pub mod size_limit;
 pub mod trainer;
 pub mod warn;
 
-pub use checkpoint::{resume, ActorStates, Counters, Resumed, CHECKPOINT_FILE};
+pub use checkpoint::{resume, ActorStates, Counters, RunState, CHECKPOINT_FILE};
 pub use hub::{Hub, HubStats, DEFAULT_ROUND_TIMEOUT, MAX_ENVS, MAX_PENDING, REGISTRATION_LEASE};
 pub use inproc::InProcessLink;
 pub use metrics::{EpisodeWindow, MetricsRow};

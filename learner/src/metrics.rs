@@ -77,20 +77,14 @@ impl EpisodeWindow {
         successes: u64,
     ) -> Self {
         let q = |t: Option<&NamedTensor>| -> VecDeque<u32> {
-            t.map(|t| {
-                t.data
-                    .iter()
-                    .filter(|x| x.is_finite() && **x >= 1.0 && **x < 16_777_216.0)
-                    .map(|&x| x as u32)
-                    .collect::<VecDeque<u32>>()
-            })
-            .map(|mut q| {
-                while q.len() > WINDOW {
-                    q.pop_front();
-                }
-                q
-            })
-            .unwrap_or_default()
+            let lengths = t.map_or(&[][..], |t| &t.data);
+            let mut q: VecDeque<u32> = lengths
+                .iter()
+                .filter(|x| x.is_finite() && **x >= 1.0 && **x < 16_777_216.0)
+                .map(|&x| x as u32)
+                .collect();
+            q.drain(..q.len().saturating_sub(WINDOW));
+            q
         };
         Self {
             all: q(all),

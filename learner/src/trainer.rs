@@ -2,8 +2,8 @@
 //! current version, batched in actor-id order), updates, publishes, logs, checkpoints.
 //! It blocks on std primitives and never runs on an async runtime.
 
-use crate::checkpoint::{save, ActorStates, Counters, CHECKPOINT_FILE};
-use crate::metrics::{EpisodeWindow, MetricsCsv, MetricsRow};
+use crate::checkpoint::{save, ActorStates, Counters, RunState, CHECKPOINT_FILE};
+use crate::metrics::{MetricsCsv, MetricsRow};
 use crate::warn::RateLimited;
 use crate::Hub;
 use saver_core::algo::Algorithm;
@@ -58,13 +58,9 @@ pub struct TrainerOptions {
     pub stop: Arc<AtomicBool>,
     /// Write the checkpoint every this many updates too (0: only at the end).
     pub checkpoint_every: u64,
-    /// Where the counters start: zero, or a resumed checkpoint's (see
-    /// [`crate::resume`]).
-    pub start: Counters,
-    /// In-process actors as the resumed checkpoint saved them (empty for a fresh run).
-    pub actors: ActorStates,
-    /// The episode window the resumed checkpoint saved (empty for a fresh run).
-    pub window: EpisodeWindow,
+    /// Where the run starts: from zero, or where a resumed checkpoint left it (see
+    /// [`crate::resume`]): counters, in-process actors, episode window.
+    pub start: RunState,
 }
 
 impl TrainerOptions {
@@ -75,9 +71,7 @@ impl TrainerOptions {
             rows: None,
             stop,
             checkpoint_every: 0,
-            start: Counters::default(),
-            actors: ActorStates::new(),
-            window: EpisodeWindow::default(),
+            start: RunState::default(),
         }
     }
 }
@@ -137,26 +131,31 @@ impl Trainer {
         let run_dir = &opts.run_dir;
         std::fs::create_dir_all(run_dir).map_err(|e| io("creating run folder", e))?;
         let metrics_path = run_dir.join("metrics.csv");
-        let resumed = opts.start != Counters::default();
+        let RunState {
+            counters: mut c,
+            // Sync mode: the actors' states after the last round, saved with the
+            // weights they lead to, so that a resumed run continues exactly.
+            mut actors,
+            mut window,
+        } = opts.start.clone();
+        let resumed = c != Counters::default();
         let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names(), resumed)
             .map_err(|e| io("creating metrics.csv", e))?;
         let config = self.hub.config().clone();
         let wait = self
             .hub
             .wait_for_actors(config.actors as usize, resumed, &self.stop);
-        let mut window = opts.window.clone();
-        let mut c = opts.start;
         let mut skipped = 0u64;
         let skip_warning = RateLimited::default();
-        // Sync mode: the actors' states after the last round, saved with the weights
-        // they lead to, so that a resumed run continues exactly.
-        let mut actors = opts.actors.clone();
         let checkpoint = run_dir.join(CHECKPOINT_FILE);
+        let save_to = |algo: &dyn Algorithm, c: &Counters, actors: &ActorStates, w: &_| {
+            save(&checkpoint, algo, c, actors, w, &config)
+        };
         let mut stale_dropped = 0u64;
         let mut interrupted = wait.is_err();
         let start = Instant::now();
         // Training time before this process: rates go on across a resume.
-        let wall_before = opts.start.wall_ms as f64 / 1000.0;
+        let wall_before = c.wall_ms as f64 / 1000.0;
         while !interrupted && c.steps < config.steps {
             let Some(Round {
                 rollouts: round,
@@ -225,41 +224,17 @@ impl Trainer {
                     let _ = tx.send(row);
                 }
             }
-            let tensors = self.algo.policy_tensors()?;
-            if let Some(t) = tensors
-                .iter()
-                .find(|t| t.data.iter().any(|x| !x.is_finite()))
-            {
-                // The optimiser never writes a non-finite value; this would be a bug.
-                return Err(CoreError::Diverged(format!(
-                    "{} is not finite after update {}; not published",
-                    t.name, c.version
-                )));
-            }
+            // Finite: the optimiser never writes a non-finite value.
             self.hub.publish(Arc::new(PolicyWeights {
                 version: c.version,
-                tensors,
+                tensors: self.algo.policy_tensors()?,
             }));
             if opts.checkpoint_every > 0 && c.version.is_multiple_of(opts.checkpoint_every) {
-                save(
-                    &checkpoint,
-                    self.algo.as_ref(),
-                    &c,
-                    &actors,
-                    &window,
-                    &config,
-                )?;
+                save_to(self.algo.as_ref(), &c, &actors, &window)?;
             }
         }
         c.wall_ms = ((wall_before + start.elapsed().as_secs_f64()) * 1000.0) as u64;
-        save(
-            &checkpoint,
-            self.algo.as_ref(),
-            &c,
-            &actors,
-            &window,
-            &config,
-        )?;
+        save_to(self.algo.as_ref(), &c, &actors, &window)?;
         Ok(TrainerOutcome {
             version: c.version,
             steps: c.steps,
@@ -288,9 +263,9 @@ impl Trainer {
             let complete = match mode {
                 Mode::Sync => {
                     let live = self.hub.actors();
-                    self.late.retain(|id| live.contains_key(id));
+                    self.late.retain(|id| live.contains(id));
                     let missing: Vec<u32> = live
-                        .keys()
+                        .iter()
                         .filter(|id| !self.late.contains(id) && !pending.contains_key(&(**id, 0)))
                         .copied()
                         .collect();

@@ -54,10 +54,8 @@ impl PcpnService {
     /// A service over the store in `dir`.
     pub fn new(dir: impl Into<PathBuf>) -> Self {
         let dir = dir.into();
-        let store = PcpnStore::new(&dir);
-        store.remove_stale_temporaries();
         Self {
-            store,
+            store: PcpnStore::new(&dir),
             dir,
             pretraining: Arc::new(Mutex::new(())),
             access: Access::default(),

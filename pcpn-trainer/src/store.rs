@@ -87,15 +87,12 @@ pub struct PcpnStore {
 }
 
 impl PcpnStore {
-    /// A store in `dir` (created on first save).
+    /// A store in `dir` (created on first save); temporary files that a killed
+    /// writer left there are removed ([`checkpoint::remove_stale_temporaries`]).
     pub fn new(dir: impl Into<PathBuf>) -> Self {
-        Self { dir: dir.into() }
-    }
-
-    /// Removes the temporary files a killed writer left in the store (see
-    /// [`checkpoint::remove_stale_temporaries`]); a store's owner calls it at start-up.
-    pub fn remove_stale_temporaries(&self) -> usize {
-        checkpoint::remove_stale_temporaries(&self.dir)
+        let dir = dir.into();
+        checkpoint::remove_stale_temporaries(&dir);
+        Self { dir }
     }
 
     /// Where the PCPN of `spec` lives.

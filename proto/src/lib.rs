@@ -136,6 +136,37 @@ pub fn decode(bytes: &[u8]) -> Result<(Vec<NamedTensor>, HashMap<String, String>
     Ok((out, metadata))
 }
 
+/// Largest safetensors header [`read_metadata`] reads (ours are a few KiB).
+const MAX_HEADER: u64 = 16 << 20;
+
+/// The string metadata of a safetensors file, read from its header alone (the
+/// tensors are neither read nor decoded).
+pub fn read_metadata(mut file: impl std::io::Read) -> Result<HashMap<String, String>, CodecError> {
+    let bad = |why: String| CodecError::Safetensors(why);
+    let mut len = [0u8; 8];
+    file.read_exact(&mut len)
+        .map_err(|e| bad(format!("reading the header length: {e}")))?;
+    let len = u64::from_le_bytes(len);
+    if len > MAX_HEADER {
+        return Err(bad(format!("a header of {len} bytes is over {MAX_HEADER}")));
+    }
+    let mut header = vec![0u8; len as usize];
+    file.read_exact(&mut header)
+        .map_err(|e| bad(format!("reading the header: {e}")))?;
+    let h: serde_json::Value =
+        serde_json::from_slice(&header).map_err(|e| bad(format!("header: {e}")))?;
+    let Some(meta) = h.get("__metadata__") else {
+        return Ok(HashMap::new());
+    };
+    meta.as_object()
+        .map(|m| {
+            m.iter()
+                .filter_map(|(k, v)| Some((k.clone(), v.as_str()?.to_string())))
+                .collect()
+        })
+        .ok_or_else(|| bad("__metadata__ is not an object".into()))
+}
+
 /// Lower-case hex sha256 of bytes.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     let digest = Sha256::digest(bytes);
@@ -197,6 +228,23 @@ mod tests {
             encode(&[bad], &HashMap::new()),
             Err(CodecError::Shape { .. })
         ));
+    }
+
+    #[test]
+    fn metadata_reads_from_the_header_alone() {
+        let t = NamedTensor {
+            name: "w".into(),
+            shape: vec![3],
+            data: vec![1.0, 2.0, 3.0],
+        };
+        let meta = HashMap::from([("config".to_string(), "{}".to_string())]);
+        let bytes = encode(&[t], &meta).unwrap();
+        assert_eq!(read_metadata(&bytes[..]).unwrap(), meta);
+        // The header is all it needs: cut the tensor data off.
+        let header_end = 8 + u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+        assert_eq!(read_metadata(&bytes[..header_end]).unwrap(), meta);
+        assert!(read_metadata(&bytes[..header_end - 1]).is_err());
+        assert!(read_metadata(&[255u8; 8][..]).is_err());
     }
 
     #[test]

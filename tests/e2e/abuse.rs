@@ -2,13 +2,12 @@
 //! values, another actor's session, bare registrations, unreadable messages, forged
 //! episodes, oversized messages, and a run killed after its checkpoint.
 
-use crate::hostile::{learner_with, one_actor_learner, open_stream, register_and_roll};
+use crate::faults::small;
+use crate::hostile::{learner_with, one_actor_learner, open_stream, register, register_and_roll};
 use crate::temp_dir;
 use saver::train::{start_learner, train_with};
 use saver_actor::grpc::GrpcLink;
 use saver_actor::{run_actor, Actor};
-use saver_core::config::{Algo, RunConfig};
-use saver_core::env::{EnvKind, EnvSpec};
 use saver_core::link::{Assignment, LearnerLink, Registration};
 use saver_core::nets::Policy;
 use saver_core::rollout::{Batch, Rollout};
@@ -118,16 +117,7 @@ fn a_session_is_a_secret_that_only_its_stream_can_use() {
     rt.block_on(async {
         let (mut a, base) = register_and_roll(&url, &hub, &config).await;
         // Another client registers and opens its own stream ...
-        let mut b = LearnerClient::connect(url.clone()).await.unwrap();
-        let reg_b = b
-            .register(pb::RegisterRequest {
-                name: "other".into(),
-                session: 0,
-                n_envs: 1,
-            })
-            .await
-            .unwrap()
-            .into_inner();
+        let (mut b, reg_b) = register(&url, &config).await;
         assert_ne!(reg_b.session, base.session);
         let mut own = base.clone();
         own.actor_id = reg_b.actor_id;
@@ -268,22 +258,7 @@ fn episode_reports_must_match_the_steps_the_learner_counted() {
         c.max_episode_steps = 3;
     });
     rt.block_on(async {
-        let mut client = LearnerClient::connect(url.clone()).await.unwrap();
-        let reply = client
-            .register(pb::RegisterRequest {
-                name: "forger".into(),
-                session: 0,
-                n_envs: 1,
-            })
-            .await
-            .unwrap()
-            .into_inner();
-        let assignment = Assignment {
-            actor_id: reply.actor_id,
-            session: reply.session,
-            config: config.clone(),
-            config_hash: reply.config_hash,
-        };
+        let (mut client, assignment) = register(&url, &config).await;
         let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
         let first = pb::Rollout::from(&Actor::new(&assignment, 1).collect(&mut policy));
         assert_eq!(first.seq, 0);
@@ -308,13 +283,6 @@ fn episode_reports_must_match_the_steps_the_learner_counted() {
     });
     hub.close("test over");
     std::fs::remove_dir_all(dir).ok();
-}
-
-fn small(actors: u32, updates: u64) -> RunConfig {
-    let mut c = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
-    c.actors = actors;
-    c.steps = updates * actors as u64 * c.envs_per_actor as u64 * c.rollout as u64;
-    c
 }
 
 #[test]

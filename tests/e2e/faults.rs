@@ -15,7 +15,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-fn small(actors: u32, updates: u64) -> RunConfig {
+/// A2C on angle d = 2 for `updates` sync updates of `actors` actors.
+pub fn small(actors: u32, updates: u64) -> RunConfig {
     let mut c = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
     c.actors = actors;
     c.steps = updates * actors as u64 * c.envs_per_actor as u64 * c.rollout as u64;

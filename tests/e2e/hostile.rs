@@ -150,6 +150,20 @@ pub async fn register_and_roll(
     hub: &saver_learner::Hub,
     config: &RunConfig,
 ) -> (LearnerClient<tonic::transport::Channel>, pb::Rollout) {
+    let (client, assignment) = register(url, config).await;
+    let mut actor = Actor::new(&assignment, 1);
+    let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
+    let mut good = actor.collect(&mut policy);
+    good.seq = 5;
+    (client, pb::Rollout::from(&good))
+}
+
+/// Registers a client with one env at the learner at `url`; returns the client and
+/// its assignment (the learner's session included).
+pub async fn register(
+    url: &str,
+    config: &RunConfig,
+) -> (LearnerClient<tonic::transport::Channel>, Assignment) {
     let mut client = LearnerClient::connect(url.to_string())
         .await
         .unwrap()
@@ -169,11 +183,7 @@ pub async fn register_and_roll(
         config: config.clone(),
         config_hash: reply.config_hash,
     };
-    let mut actor = Actor::new(&assignment, 1);
-    let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
-    let mut good = actor.collect(&mut policy);
-    good.seq = 5;
-    (client, pb::Rollout::from(&good))
+    (client, assignment)
 }
 
 /// Opens StreamRollouts as `base`'s actor (asking for refusals only if `refusals`).
@@ -196,33 +206,24 @@ pub async fn open_stream(
     (tx, client.stream_rollouts(req).await.unwrap().into_inner())
 }
 
-/// A learner (A2C, angle d = 2, sync, one actor) served on 127.0.0.1:0: its config,
-/// output dir, runtime, handle (kept alive by the caller), hub and URL.
-pub fn one_actor_learner(
-    name: &str,
-) -> (
+/// A learner served on 127.0.0.1:0: its config, output dir, runtime, handle (kept
+/// alive by the caller), hub and URL.
+pub type Served = (
     RunConfig,
     std::path::PathBuf,
     tokio::runtime::Runtime,
     saver::train::LocalLearner,
     Arc<saver_learner::Hub>,
     String,
-) {
+);
+
+/// A [`Served`] learner: A2C, angle d = 2, sync, one actor.
+pub fn one_actor_learner(name: &str) -> Served {
     learner_with(name, |_| {})
 }
 
 /// [`one_actor_learner`] with `change` applied to its config.
-pub fn learner_with(
-    name: &str,
-    change: impl FnOnce(&mut RunConfig),
-) -> (
-    RunConfig,
-    std::path::PathBuf,
-    tokio::runtime::Runtime,
-    saver::train::LocalLearner,
-    Arc<saver_learner::Hub>,
-    String,
-) {
+pub fn learner_with(name: &str, change: impl FnOnce(&mut RunConfig)) -> Served {
     let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
     config.actors = 1;
     config.steps = 1_000_000;
