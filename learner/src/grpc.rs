@@ -488,12 +488,13 @@ pub async fn serve(
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<LearnerServer<LearnerService>>().await;
     let limit = crate::size_limit::RolloutSizeLimit::new(service.hub.clone());
+    let incoming = service.access.incoming(listener);
     service
         .access
         .server()?
         .layer(limit)
         .add_service(health_service)
         .add_service(service.into_server())
-        .serve_with_incoming_shutdown(saver_proto::incoming(listener), shutdown)
+        .serve_with_incoming_shutdown(incoming, shutdown)
         .await
 }

@@ -222,12 +222,13 @@ pub async fn serve(
 ) -> Result<(), tonic::transport::Error> {
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<PcpnStoreServer<PcpnService>>().await;
+    let incoming = service.access.incoming(listener);
     service
         .access
         .server()?
         .add_service(health_service)
         .add_service(service.into_server())
-        .serve_with_incoming_shutdown(saver_proto::incoming(listener), shutdown)
+        .serve_with_incoming_shutdown(incoming, shutdown)
         .await
 }
 

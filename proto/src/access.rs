@@ -3,6 +3,7 @@
 //! TLS (rustls) when a server has a certificate, and the HTTP/2 settings of both ends
 //! (keepalive, so that a cut link is noticed).
 
+use crate::admit::{Admitted, Guarded, AUTH_GRACE};
 use std::sync::Arc;
 use std::time::Duration;
 use tonic::metadata::{Ascii, MetadataValue};
@@ -42,11 +43,14 @@ pub fn validate_token(token: &str) -> Result<(), TokenError> {
 }
 
 /// Server side: refuses every call that does not carry the expected token with
-/// UNAUTHENTICATED. With no token configured it lets everything through.
+/// UNAUTHENTICATED. With no token configured it lets everything through. A call that
+/// passes admits its connection ([`crate::admit`]).
 #[derive(Clone, Default)]
 pub struct CheckToken {
     /// `Bearer <token>` as bytes.
     expected: Option<Arc<[u8]>>,
+    /// Connections whose call passed.
+    admitted: Admitted,
 }
 
 impl CheckToken {
@@ -57,6 +61,7 @@ impl CheckToken {
         }
         Ok(Self {
             expected: token.map(|t| format!("Bearer {t}").into_bytes().into()),
+            admitted: Admitted::default(),
         })
     }
 }
@@ -68,16 +73,21 @@ fn same_bytes(a: &[u8], b: &[u8]) -> bool {
 
 impl Interceptor for CheckToken {
     fn call(&mut self, req: Request<()>) -> Result<Request<()>, Status> {
-        let Some(expected) = &self.expected else {
-            return Ok(req);
-        };
-        match req.metadata().get(AUTH_KEY) {
-            None => Err(Status::unauthenticated(
-                "this server needs a token: pass --token, SAVER_TOKEN or --token-file",
-            )),
-            Some(v) if same_bytes(v.as_bytes(), expected) => Ok(req),
-            Some(_) => Err(Status::unauthenticated("wrong token")),
+        if let Some(expected) = &self.expected {
+            match req.metadata().get(AUTH_KEY) {
+                None => {
+                    return Err(Status::unauthenticated(
+                        "this server needs a token: pass --token, SAVER_TOKEN or --token-file",
+                    ))
+                }
+                Some(v) if same_bytes(v.as_bytes(), expected) => {}
+                Some(_) => return Err(Status::unauthenticated("wrong token")),
+            }
         }
+        if let Some(peer) = req.remote_addr() {
+            self.admitted.admit(peer);
+        }
+        Ok(req)
     }
 }
 
@@ -127,6 +137,26 @@ impl Access {
     /// Only a token check, no TLS.
     pub fn token(check: CheckToken) -> Self {
         Self { check, tls: None }
+    }
+
+    /// The connections a server accepts on `listener`: Nagle's algorithm off, and
+    /// each closed unless a call passes the token check within
+    /// [`crate::admit::AUTH_GRACE`].
+    ///
+    /// `Server::tcp_nodelay` applies only to addresses the server binds itself; a
+    /// server fed a listener (every SAVER server: they bind first, to report the
+    /// port) must set it per accepted socket, here. Without it a pushed weights
+    /// message waited for the actor's delayed ACK: 16 sync actor processes ran ~38 ms
+    /// rounds on loopback.
+    pub fn incoming(
+        &self,
+        listener: tokio::net::TcpListener,
+    ) -> impl tokio_stream::Stream<Item = std::io::Result<Guarded>> {
+        use tokio_stream::StreamExt;
+        let admitted = self.check.admitted.clone();
+        tonic::transport::server::TcpIncoming::from(listener)
+            .with_nodelay(Some(true))
+            .map(move |s| s.map(|s| Guarded::new(s, admitted.clone(), AUTH_GRACE)))
     }
 
     /// The transport of a server with these settings (see [`server`]).
@@ -189,22 +219,12 @@ pub fn endpoint(url: &str) -> Result<Endpoint, tonic::transport::Error> {
         .keep_alive_while_idle(true))
 }
 
-/// The connections a server accepts on `listener`, with Nagle's algorithm off.
-///
-/// `Server::tcp_nodelay` applies only to addresses the server binds itself; a server fed
-/// a listener (every SAVER server: they bind first, to report the port) must set it per
-/// accepted socket, here. Without it a pushed weights message waited for the actor's
-/// delayed ACK: 16 sync actor processes ran ~38 ms rounds on loopback.
-pub fn incoming(listener: tokio::net::TcpListener) -> tonic::transport::server::TcpIncoming {
-    tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true))
-}
-
 /// The transport settings every SAVER server uses (see [`Access::server`] for TLS):
 /// small receive windows (64 KiB per stream, 1 MiB per connection), so an actor cannot
 /// park thousands of rollouts in flight that are stale when they arrive (the clients'
 /// windows, which carry weights the other way, are large); keepalive pings (a peer
 /// behind a cut link is dropped, so its streams end and a sync round stops waiting for
-/// it). No Nagle delay comes from [`incoming`]: every SAVER server is fed a listener,
+/// it). No Nagle delay comes from [`Access::incoming`]: every SAVER server is fed a listener,
 /// for which `Server::tcp_nodelay` does nothing.
 pub fn server() -> tonic::transport::Server {
     tonic::transport::Server::builder()

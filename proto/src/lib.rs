@@ -4,8 +4,9 @@
 //! them with the safetensors package alone.
 
 pub mod access;
+pub mod admit;
 pub mod weights_dir;
-pub use access::{endpoint, incoming, server, Access, AddToken, CheckToken, ClientAccess};
+pub use access::{endpoint, server, Access, AddToken, CheckToken, ClientAccess};
 
 /// Generated gRPC messages, clients and servers (package `saver.v1`).
 #[allow(missing_docs, clippy::all)]
