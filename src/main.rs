@@ -3,7 +3,7 @@
 //! measures the updates against the machine's matmul peak; `saver plot` draws curves.
 
 use clap::{Parser, Subcommand};
-use saver::{bench, clients, config, plot, pretrain, services, train};
+use saver_run::{bench, clients, config, plot, pretrain, services, train};
 use std::process::ExitCode;
 
 /// SAVER: state aligned vector rewards with quantile regression RL.
@@ -49,7 +49,7 @@ fn main() -> ExitCode {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
-    saver::init_process(None);
+    saver_run::init_process(None);
     let result = match cli.command {
         Command::Train(a) => train::run(a),
         Command::Pretrain(a) => pretrain::run(a),

@@ -2,6 +2,7 @@
 //! through a [`LearnerLink`] (in-process or gRPC — the actor does not know which).
 
 pub mod grpc;
+pub mod remote;
 
 use saver_core::config::{Mode, RunConfig};
 use saver_core::env::{Env, EnvLayout};

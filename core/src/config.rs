@@ -1,6 +1,7 @@
-//! The run configuration: one validated type that every part of a run reads. Raw flags
-//! and config files are turned into it in one place (the CLI); defaults reproduce the
-//! paper (SPEC.md).
+//! The run configuration: one validated type that every part of a run reads. Its serde
+//! form is the run folder's config.toml (every setting explicit); flags and `--config`
+//! files are its partial form ([`crate::settings`]). Defaults and where they differ from
+//! the paper: docs/ALGORITHM.md.
 
 use crate::env::{EnvKind, EnvSpec};
 use crate::nets::HeadConfig;
@@ -9,7 +10,7 @@ use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 
 /// The learning algorithm.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Algo {
     /// Vector rewards through the frozen PCPN with the QRRL loss.
@@ -21,13 +22,11 @@ pub enum Algo {
 impl Algo {
     /// Parses `saver` or `a2c`.
     pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "saver" => Ok(Self::Saver),
-            "a2c" => Ok(Self::A2c),
-            other => Err(CoreError::Config(format!(
-                "algo: unknown algorithm {other:?} (expected saver or a2c)"
-            ))),
-        }
+        <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            CoreError::Config(format!(
+                "algo: unknown algorithm {s:?} (expected saver or a2c)"
+            ))
+        })
     }
     /// The lower-case name.
     pub fn name(self) -> &'static str {
@@ -39,7 +38,7 @@ impl Algo {
 }
 
 /// How the learner forms batches.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Mode {
     /// One rollout per registered actor at the current version, in actor-id order
@@ -50,16 +49,6 @@ pub enum Mode {
 }
 
 impl Mode {
-    /// Parses `sync` or `async`.
-    pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "sync" => Ok(Self::Sync),
-            "async" => Ok(Self::Async),
-            other => Err(CoreError::Config(format!(
-                "mode: unknown mode {other:?} (expected sync or async)"
-            ))),
-        }
-    }
     /// The lower-case name.
     pub fn name(self) -> &'static str {
         match self {
@@ -69,12 +58,60 @@ impl Mode {
     }
 }
 
+/// An optimiser with TensorFlow 1's constants (docs/ALGORITHM.md, optimisers).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum OptimizerKind {
+    /// TF1 RMSProp (decay 0.9, ε 1e-10 inside the root, slots start at 1): the paper's.
+    Rmsprop,
+    /// TF1 Adam (β 0.9, 0.999, ε̂ 1e-8).
+    Adam,
+}
+
+impl OptimizerKind {
+    /// Its constants.
+    pub fn tf1(self) -> OptimizerConfig {
+        match self {
+            Self::Rmsprop => OptimizerConfig::RMSPROP_TF1,
+            Self::Adam => OptimizerConfig::ADAM_TF1,
+        }
+    }
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Rmsprop => "rmsprop",
+            Self::Adam => "adam",
+        }
+    }
+}
+
+/// Where PCPN pretraining samples come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum SampleDistribution {
+    /// The paper's: an observation from the env's reset distribution, μ ~ U(-1, 1),
+    /// σ ~ U(0, 1), one step with a ~ N(μ, σ²).
+    Reset,
+}
+
+impl SampleDistribution {
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Reset => "reset",
+        }
+    }
+}
+
 /// SAVER's loss constants.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SaverConfig {
     /// K: quantile copies per transition.
     pub quantiles: usize,
-    /// κ of the Huber quantile loss; `None`: the plain quantile loss (paper).
+    /// κ of the Huber quantile loss; `None` (written 0: the κ → 0 limit): the plain
+    /// quantile loss (paper).
+    #[serde(with = "zero_is_none")]
     pub kappa: Option<f64>,
     /// λ_mon, weight of the monotonic penalty.
     pub lambda_mon: f64,
@@ -87,82 +124,43 @@ pub struct SaverConfig {
     /// dimension still centred) instead of one per dimension, so a dimension whose
     /// advantages are only noise (a coordinate already at the goal) stays small
     /// rather than being scaled up to the size of the informative ones.
-    #[serde(default)]
     pub adv_norm_joint: bool,
     /// Weight of a penalty on the mean head's raw output beyond ±[`MU_RAW_LIMIT`]:
     /// `w · Σ_j mean_batch relu(|raw_j| − limit)²`. With μ = tanh(raw), a mean pushed
     /// deep into saturation gets no gradient back (tanh' ≈ 0) and stays there; on
     /// angle that freezes a pair's direction at 0 or π, so one of its coordinates can
     /// no longer move. 0: off (the paper).
-    #[serde(default)]
     pub mu_raw_penalty: f64,
 }
 
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
 pub const MU_RAW_LIMIT: f64 = 2.0;
 
-/// PCPN pretraining settings.
+/// PCPN pretraining settings: everything that decides the PCPN's weights. A PCPN is
+/// stored and found by its env spec and these (the same settings give the same
+/// weights, bit for bit, from every entry point).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PretrainConfig {
+    /// Optimiser.
+    pub optimizer: OptimizerKind,
+    /// Learning rate (paper: 0.1 × the agent's).
+    pub lr: f64,
     /// Number of fresh batches.
     pub batches: u64,
     /// Transitions per batch.
     pub batch_size: usize,
-    /// Learning rate (paper: 0.1 × the agent's).
-    pub lr: f64,
-    /// Fresh held-out batches for the final quantile loss.
-    pub eval_batches: usize,
+    /// K: τ samples per transition.
+    pub quantiles: usize,
+    /// Seed of the weights, the samples and the τ draws (apart from the run's seed, so
+    /// that every run of an env shares one PCPN, as the paper intends).
+    pub seed: u64,
+    /// The sample distribution.
+    pub samples: SampleDistribution,
 }
 
-/// Everything that defines a run.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RunConfig {
-    /// Environment preset and dimension.
-    pub env: EnvSpec,
-    /// Algorithm.
-    pub algo: Algo,
-    /// Env steps (transitions) to train for.
-    pub steps: u64,
-    /// Base seed: weights, tau draws and actor streams derive from it.
-    pub seed: u64,
-    /// Number of actors (sync: the learner waits for this many before the first
-    /// update; async: rollouts per update).
-    pub actors: u32,
-    /// Batch formation.
-    pub mode: Mode,
-    /// Async mode: largest accepted policy lag (versions behind the learner).
-    pub max_lag: u64,
-    /// Env instances per actor.
-    pub envs_per_actor: u32,
-    /// Rollout length n.
-    pub rollout: u32,
-    /// Discount γ.
-    pub gamma: f64,
-    /// Agent (and critic) learning rate.
-    pub lr: f64,
-    /// Optimiser and its constants.
-    pub optimizer: OptimizerConfig,
-    /// Let the learning rate fall linearly from `lr` to zero over the run's updates
-    /// (the paper: constant).
-    #[serde(default)]
-    pub lr_decay: bool,
-    /// Clip the global gradient norm of each update to this (the paper: no clipping).
-    pub grad_clip: Option<f64>,
-    /// Bounds of the policy's μ and log σ (the paper: none).
-    pub head: HeadConfig,
-    /// Episode step limit (hitting it is terminal, as in the paper's code).
-    pub max_episode_steps: u32,
-    /// At the step limit, bootstrap the return from the value of the observation
-    /// reached, instead of treating the limit as terminal (the paper's code).
-    #[serde(default)]
-    pub bootstrap_timeout: bool,
-    /// A2C value-loss weight.
-    pub value_coef: f64,
-    /// SAVER constants.
-    pub saver: SaverConfig,
-    /// PCPN pretraining.
-    pub pretrain: PretrainConfig,
-}
+/// Held-out batches of the pretraining report (fresh samples, fixed τ stream).
+pub const PRETRAIN_EVAL_BATCHES: usize = 16;
 
 /// The paper's learning rate for an env and algorithm (SPEC.md).
 pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
@@ -176,13 +174,6 @@ pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
     }
 }
 
-/// SAVER's learning rate by default (with Adam; the paper's is 0.01 with RMSProp).
-/// 3e-4 before: at d = 16 it left SAVER at a mean length of 1000 for 2.56 M steps,
-/// where 1e-3 moves every coordinate toward the goal ~2x as fast (results/README.md).
-pub const RECOMMENDED_SAVER_LR: f64 = 1e-3;
-/// PCPN pretraining batches by default (the paper's: 100,000 for angle).
-pub const RECOMMENDED_PRETRAIN_BATCHES: u64 = 5_000;
-
 /// The paper's number of pretraining batches for an env.
 pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
     match kind {
@@ -191,10 +182,136 @@ pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
     }
 }
 
+impl PretrainConfig {
+    /// The paper's: TF1 RMSProp at 0.1 × the paper's SAVER rate, the paper's number of
+    /// batches of 128, K = 32.
+    pub fn paper(kind: EnvKind) -> Self {
+        Self {
+            optimizer: OptimizerKind::Rmsprop,
+            lr: 0.1 * paper_lr(kind, Algo::Saver),
+            batches: paper_pretrain_batches(kind),
+            batch_size: 128,
+            quantiles: 32,
+            seed: 0,
+            samples: SampleDistribution::Reset,
+        }
+    }
+
+    /// The default: the paper's but 5,000 batches (the held-out loss settles by
+    /// ~1,000; results/README.md). The committed angle-d4 PCPN was made with these.
+    pub fn recommended(kind: EnvKind) -> Self {
+        Self {
+            batches: RECOMMENDED_PRETRAIN_BATCHES,
+            ..Self::paper(kind)
+        }
+    }
+
+    /// Checks every field; the message names the field.
+    pub fn validate(&self) -> Result<()> {
+        let bad =
+            |field: &str, why: String| Err(CoreError::Config(format!("pretrain.{field}: {why}")));
+        if !(self.lr.is_finite() && self.lr > 0.0 && self.lr < 10.0) {
+            return bad(
+                "lr",
+                format!("{} is not a learning rate in (0, 10)", self.lr),
+            );
+        }
+        if !(1..=100_000_000).contains(&self.batches) {
+            return bad("batches", format!("{} is not in 1..=1e8", self.batches));
+        }
+        if !(1..=65_536).contains(&self.batch_size) {
+            return bad(
+                "batch_size",
+                format!("{} is not in 1..=65536", self.batch_size),
+            );
+        }
+        if !(1..=1024).contains(&self.quantiles) {
+            return bad(
+                "quantiles",
+                format!("{} is not in 1..=1024", self.quantiles),
+            );
+        }
+        Ok(())
+    }
+
+    /// The identity of the PCPN these settings make for `spec`: a short hash of both,
+    /// for file names (the full settings are in the file's metadata).
+    pub fn key(&self, spec: &EnvSpec) -> String {
+        let json = serde_json::to_vec(&(spec, self)).unwrap_or_default();
+        saver_proto::sha256_hex(&json)[..12].to_string()
+    }
+}
+
+/// Everything that defines a run. Its TOML form is the run folder's config.toml.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Algorithm.
+    pub algo: Algo,
+    /// Env steps (transitions) to train for.
+    pub steps: u64,
+    /// Base seed: weights, tau draws and actor streams derive from it.
+    pub seed: u64,
+    /// Number of actors (sync: the learner waits for this many before the first
+    /// update; async: rollouts per update).
+    pub actors: u32,
+    /// Env instances per actor.
+    #[serde(rename = "envs")]
+    pub envs_per_actor: u32,
+    /// Batch formation.
+    pub mode: Mode,
+    /// Async mode: largest accepted policy lag (versions behind the learner); `None`
+    /// in sync mode, which has no lag.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_lag: Option<u64>,
+    /// Rollout length n.
+    pub rollout: u32,
+    /// Discount γ.
+    pub gamma: f64,
+    /// Agent (and critic) learning rate.
+    pub lr: f64,
+    /// Optimiser.
+    pub optimizer: OptimizerKind,
+    /// Let the learning rate fall linearly from `lr` to zero over the run's updates
+    /// (the paper: constant).
+    pub lr_decay: bool,
+    /// Clip the global gradient norm of each update to this (`None`, written inf: no
+    /// clipping, the paper).
+    #[serde(with = "inf_is_none")]
+    pub grad_clip: Option<f64>,
+    /// Episode step limit (hitting it is terminal, as in the paper's code).
+    pub max_episode_steps: u32,
+    /// At the step limit, bootstrap the return from the value of the observation
+    /// reached, instead of treating the limit as terminal (the paper's code).
+    pub bootstrap_timeout: bool,
+    /// A2C value-loss weight.
+    pub value_coef: f64,
+    /// The environment.
+    pub env: EnvSpec,
+    /// Bounds of the policy's μ and log σ (the paper: none).
+    pub head: HeadConfig,
+    /// SAVER constants.
+    pub saver: SaverConfig,
+    /// PCPN pretraining (SAVER).
+    pub pretrain: PretrainConfig,
+    /// SAVER: the weights sha256 of the PCPN this run uses. `None` before a PCPN is
+    /// chosen; a run started with it set refuses any other PCPN.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pcpn_sha256: Option<String>,
+}
+
+/// SAVER's learning rate by default (with Adam; the paper's is 0.01 with RMSProp).
+/// 3e-4 before: at d = 16 it left SAVER at a mean length of 1000 for 2.56 M steps,
+/// where 1e-3 moves every coordinate toward the goal ~2x as fast (results/README.md).
+pub const RECOMMENDED_SAVER_LR: f64 = 1e-3;
+/// PCPN pretraining batches by default (the paper's: 100,000 for angle).
+pub const RECOMMENDED_PRETRAIN_BATCHES: u64 = 5_000;
+/// Async mode's policy lag unless set.
+pub const DEFAULT_MAX_LAG: u64 = 4;
+
 impl RunConfig {
     /// The paper's settings for an env and algorithm, for `steps` steps.
     pub fn paper(env: EnvSpec, algo: Algo, steps: u64) -> Self {
-        let lr = paper_lr(env.kind, algo);
         Self {
             env,
             algo,
@@ -202,12 +319,12 @@ impl RunConfig {
             seed: 0,
             actors: 16,
             mode: Mode::Sync,
-            max_lag: 4,
+            max_lag: None,
             envs_per_actor: 1,
             rollout: 8,
             gamma: 0.99,
-            lr,
-            optimizer: OptimizerConfig::RMSPROP_TF1,
+            lr: paper_lr(env.kind, algo),
+            optimizer: OptimizerKind::Rmsprop,
             lr_decay: false,
             grad_clip: None,
             head: HeadConfig::FAITHFUL,
@@ -223,12 +340,8 @@ impl RunConfig {
                 adv_norm_joint: false,
                 mu_raw_penalty: 0.0,
             },
-            pretrain: PretrainConfig {
-                batches: paper_pretrain_batches(env.kind),
-                batch_size: 128,
-                lr: 0.1 * paper_lr(env.kind, Algo::Saver),
-                eval_batches: 16,
-            },
+            pretrain: PretrainConfig::paper(env.kind),
+            pcpn_sha256: None,
         }
     }
 
@@ -241,13 +354,13 @@ impl RunConfig {
     /// settings.
     pub fn recommended(env: EnvSpec, algo: Algo, steps: u64) -> Self {
         let mut c = Self::paper(env, algo, steps);
+        c.pretrain = PretrainConfig::recommended(env.kind);
         if algo == Algo::Saver {
-            c.optimizer = OptimizerConfig::ADAM_TF1;
+            c.optimizer = OptimizerKind::Adam;
             c.lr = RECOMMENDED_SAVER_LR;
             c.head = HeadConfig::IN_PCPN_DOMAIN;
             c.saver.adv_norm = true;
             c.saver.adv_norm_joint = true;
-            c.pretrain.batches = RECOMMENDED_PRETRAIN_BATCHES;
         }
         c
     }
@@ -268,31 +381,46 @@ impl RunConfig {
                 format!("{} is not in 1..=1024", self.envs_per_actor),
             );
         }
+        match (self.mode, self.max_lag) {
+            (Mode::Sync, Some(_)) => {
+                return bad(
+                    "max_lag",
+                    "sync mode uses every rollout at the current version; a policy lag \
+                     applies to --mode async only"
+                        .into(),
+                )
+            }
+            (Mode::Async, None) => return bad("max_lag", "async mode needs one".into()),
+            _ => {}
+        }
         if !(1..=10_000).contains(&self.rollout) {
             return bad("rollout", format!("{} is not in 1..=10000", self.rollout));
         }
         if !(self.gamma > 0.0 && self.gamma <= 1.0) {
             return bad("gamma", format!("{} is not in (0, 1]", self.gamma));
         }
-        for (field, lr) in [("lr", self.lr), ("pretrain.lr", self.pretrain.lr)] {
-            if !(lr.is_finite() && lr > 0.0 && lr < 10.0) {
-                return bad(field, format!("{lr} is not a learning rate in (0, 10)"));
-            }
+        if !(self.lr.is_finite() && self.lr > 0.0 && self.lr < 10.0) {
+            return bad(
+                "lr",
+                format!("{} is not a learning rate in (0, 10)", self.lr),
+            );
         }
-        self.optimizer.validate()?;
         if let Some(c) = self.grad_clip {
             if !(c.is_finite() && c > 0.0) {
-                return bad("grad_clip", format!("{c} must be > 0"));
+                return bad("grad_clip", format!("{c} must be > 0 (inf: no clipping)"));
             }
         }
         if let Some(b) = self.head.mu_bound {
             if !(b.is_finite() && b > 0.0) {
-                return bad("mu_bound", format!("{b} must be > 0"));
+                return bad("head.mu_bound", format!("{b} must be > 0 (inf: unbounded)"));
             }
         }
         if let Some((lo, hi)) = self.head.log_std_bounds {
             if !(lo.is_finite() && hi.is_finite() && lo < hi) {
-                return bad("log_std_bounds", format!("[{lo}, {hi}] is not an interval"));
+                return bad(
+                    "head.log_std_min, head.log_std_max",
+                    format!("[{lo}, {hi}] is not an interval (-inf and inf: unbounded)"),
+                );
             }
         }
         if self.max_episode_steps == 0 {
@@ -313,7 +441,7 @@ impl RunConfig {
         }
         if let Some(k) = s.kappa {
             if !(k.is_finite() && k > 0.0) {
-                return bad("saver.kappa", format!("{k} must be > 0"));
+                return bad("saver.kappa", format!("{k} must be >= 0 (0: plain loss)"));
             }
         }
         for (field, v) in [
@@ -325,15 +453,12 @@ impl RunConfig {
                 return bad(field, format!("{v} must be finite and >= 0"));
             }
         }
-        let p = &self.pretrain;
-        if !(1..=65_536).contains(&p.batch_size) {
+        self.pretrain.validate()?;
+        if self.algo != Algo::Saver && self.pcpn_sha256.is_some() {
             return bad(
-                "pretrain.batch_size",
-                format!("{} is not in 1..=65536", p.batch_size),
+                "pcpn_sha256",
+                format!("{} runs use no PCPN", self.algo.name()),
             );
-        }
-        if p.eval_batches == 0 {
-            return bad("pretrain.eval_batches", "must be >= 1".into());
         }
         Ok(())
     }
@@ -343,10 +468,70 @@ impl RunConfig {
         self.actors as u64 * self.envs_per_actor as u64 * self.rollout as u64
     }
 
+    /// Async mode's policy lag (0 in sync mode, where every rollout is current).
+    pub fn lag_limit(&self) -> u64 {
+        self.max_lag.unwrap_or(0)
+    }
+
     /// Hash of the config (sha256 of its JSON), so peers can tell they agree.
     pub fn hash(&self) -> String {
         let json = serde_json::to_vec(self).unwrap_or_default();
         saver_proto::sha256_hex(&json)
+    }
+
+    /// The config as the TOML of config.toml, every setting listed.
+    pub fn to_toml(&self) -> String {
+        let body = toml::to_string(self).unwrap_or_default();
+        format!(
+            "# Every setting of this run; `saver train --config <this file>` repeats it.\n\
+             # inf (grad_clip, head.*) means no bound; saver.kappa = 0 the plain quantile loss.\n\
+             {body}"
+        )
+    }
+}
+
+/// `Option<f64>` written as a number where `None` is `inf` (TOML `inf`, JSON `null`).
+pub(crate) mod inf_is_none {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    /// `None` → inf.
+    pub fn serialize<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(v.unwrap_or(f64::INFINITY))
+    }
+
+    /// inf, -inf or null → `None`.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.filter(|v| v.is_finite() || v.is_nan()))
+    }
+}
+
+/// `Option<f64>` written as a number where `None` is `-inf` (a lower bound).
+pub(crate) mod neg_inf_is_none {
+    use serde::{Deserializer, Serializer};
+
+    /// `None` → -inf.
+    pub fn serialize<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(v.unwrap_or(f64::NEG_INFINITY))
+    }
+
+    /// inf, -inf or null → `None`.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+        super::inf_is_none::deserialize(d)
+    }
+}
+
+/// `Option<f64>` written as a number where `None` is 0.
+pub(crate) mod zero_is_none {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    /// `None` → 0.
+    pub fn serialize<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(v.unwrap_or(0.0))
+    }
+
+    /// 0 or null → `None`.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.filter(|&v| v != 0.0))
     }
 }
 
@@ -368,8 +553,59 @@ mod tests {
         let mut c = ok.clone();
         c.lr = f64::NAN;
         assert!(c.validate().unwrap_err().to_string().contains("lr"));
+        let mut c = ok.clone();
+        c.max_lag = Some(2);
+        assert!(c.validate().unwrap_err().to_string().contains("max_lag"));
         let mut c = ok;
         c.env.dim = 3;
         assert!(c.validate().unwrap_err().to_string().contains("even"));
+    }
+
+    /// Every field survives TOML and JSON, the unbounded ones (inf, κ = 0) included.
+    #[test]
+    fn toml_and_json_forms_read_back_equal() {
+        let env = EnvSpec::new(EnvKind::Select, 5).unwrap();
+        let faithful = RunConfig::paper(env, Algo::Saver, 1000);
+        let mut bounded = RunConfig::recommended(env, Algo::Saver, 1000);
+        bounded.saver.kappa = Some(0.01);
+        bounded.grad_clip = Some(0.5);
+        bounded.mode = Mode::Async;
+        bounded.max_lag = Some(3);
+        bounded.pcpn_sha256 = Some("ab".repeat(32));
+        for c in [faithful, bounded] {
+            let text = c.to_toml();
+            let back: RunConfig = toml::from_str(&text).unwrap();
+            assert_eq!(back, c, "{text}");
+            let json: RunConfig = serde_json::from_slice(&serde_json::to_vec(&c).unwrap()).unwrap();
+            assert_eq!(json, c);
+        }
+    }
+
+    /// The same env and settings give the same key; any setting changes it.
+    #[test]
+    fn pretrain_key_covers_every_setting() {
+        let env = EnvSpec::new(EnvKind::Angle, 4).unwrap();
+        let p = PretrainConfig::recommended(EnvKind::Angle);
+        let k = p.key(&env);
+        assert_eq!(k.len(), 12);
+        assert_eq!(k, PretrainConfig::recommended(EnvKind::Angle).key(&env));
+        let others = [
+            PretrainConfig { lr: 0.002, ..p },
+            PretrainConfig { batches: 5001, ..p },
+            PretrainConfig { seed: 1, ..p },
+            PretrainConfig {
+                optimizer: OptimizerKind::Adam,
+                ..p
+            },
+            PretrainConfig { quantiles: 16, ..p },
+            PretrainConfig {
+                batch_size: 64,
+                ..p
+            },
+        ];
+        for o in others {
+            assert_ne!(o.key(&env), k, "{o:?}");
+        }
+        assert_ne!(p.key(&EnvSpec::new(EnvKind::Angle, 2).unwrap()), k);
     }
 }

@@ -20,6 +20,7 @@ pub mod pretrain;
 pub mod returns;
 pub mod rng;
 pub mod rollout;
+pub mod settings;
 pub mod wire;
 
 pub use error::{CoreError, Result};

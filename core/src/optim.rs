@@ -129,7 +129,7 @@ impl Optimizer {
     /// The optimiser a run's config asks for: its kind, learning rate, gradient clip
     /// and, with `lr_decay`, a rate that falls linearly to zero over the run's updates.
     pub fn for_run(vars: Vec<(String, Var)>, config: &RunConfig) -> Result<Self> {
-        let opt = Self::with_clip(vars, config.optimizer, config.lr, config.grad_clip)?;
+        let opt = Self::with_clip(vars, config.optimizer.tf1(), config.lr, config.grad_clip)?;
         Ok(if config.lr_decay {
             opt.decaying_over(config.steps.div_ceil(config.batch_transitions()))
         } else {

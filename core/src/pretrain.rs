@@ -6,10 +6,11 @@
 //! streamed from a foreign env can feed it the same way.
 
 use crate::algo::tau_tensors;
+use crate::config::PretrainConfig;
 use crate::env::{EnvLayout, EnvSpec};
 use crate::loss::quantile_loss;
 use crate::nets::{sample_softmax_pub, ParamSet, Pcpn};
-use crate::optim::{Optimizer, OptimizerConfig};
+use crate::optim::Optimizer;
 use crate::rng::{normal, rng_for, streams, uniform01, SaverRng};
 use crate::{CoreError, Result};
 use candle_core::{Device, Tensor};
@@ -130,27 +131,20 @@ pub struct Pretrainer {
 }
 
 impl Pretrainer {
-    /// A fresh PCPN for `source`'s layout.
-    pub fn new(
-        source: Box<dyn SampleSource>,
-        seed: u64,
-        optimizer: OptimizerConfig,
-        lr: f64,
-        batch_size: usize,
-        k: usize,
-        dev: &Device,
-    ) -> Result<Self> {
-        let mut rng = rng_for(seed, streams::PRETRAIN);
+    /// A fresh PCPN for `source`'s layout, trained per `p` (its optimiser, rate,
+    /// batch size, K and seed; the caller decides how many batches).
+    pub fn new(source: Box<dyn SampleSource>, p: &PretrainConfig, dev: &Device) -> Result<Self> {
+        let mut rng = rng_for(p.seed, streams::PRETRAIN);
         let mut params = ParamSet::default();
         let pcpn = Pcpn::init(&source.layout(), &mut rng, dev, &mut params)?;
-        let opt = Optimizer::new(params.vars, optimizer, lr)?;
+        let opt = Optimizer::new(params.vars, p.optimizer.tf1(), p.lr)?;
         Ok(Self {
             pcpn,
             opt,
             source,
             rng,
-            batch_size,
-            k,
+            batch_size: p.batch_size,
+            k: p.quantiles,
             dev: dev.clone(),
         })
     }
@@ -211,11 +205,15 @@ mod tests {
         let dev = Device::Cpu;
         let k = 32;
         let source = Box::new(EnvSampler::new(spec, 0, streams::PRETRAIN));
-        let mut t =
-            Pretrainer::new(source, 0, OptimizerConfig::RMSPROP_TF1, 1e-3, 128, k, &dev).unwrap();
+        let p = PretrainConfig {
+            lr: 1e-3,
+            batches: 400,
+            ..PretrainConfig::paper(EnvKind::Angle)
+        };
+        let mut t = Pretrainer::new(source, &p, &dev).unwrap();
         let mut held_out = EnvSampler::new(spec, 0, 77);
         let untrained = t.evaluate(&mut held_out, 4, 1).unwrap();
-        for _ in 0..400 {
+        for _ in 0..p.batches {
             t.step().unwrap();
         }
         let mut held_out = EnvSampler::new(spec, 0, 77);

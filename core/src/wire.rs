@@ -2,6 +2,7 @@
 //! rollout becomes a domain [`Rollout`] only here, with every length checked against
 //! its declared sizes (the learner then checks it against the env layout).
 
+use crate::config::PretrainConfig;
 use crate::env::{EnvKind, EnvLayout, EnvSpec};
 use crate::rollout::{Episode, Rollout};
 use crate::{CoreError, Result};
@@ -37,6 +38,45 @@ impl TryFrom<&pb::EnvSpec> for EnvSpec {
     type Error = CoreError;
     fn try_from(s: &pb::EnvSpec) -> Result<Self> {
         EnvSpec::new(EnvKind::parse(&s.kind)?, s.dim as usize)
+    }
+}
+
+impl From<&PretrainConfig> for pb::PretrainSettings {
+    fn from(p: &PretrainConfig) -> Self {
+        Self {
+            optimizer: p.optimizer.name().to_string(),
+            lr: p.lr,
+            batches: p.batches,
+            batch_size: p.batch_size as u32,
+            quantiles: p.quantiles as u32,
+            seed: p.seed,
+            samples: p.samples.name().to_string(),
+        }
+    }
+}
+
+impl TryFrom<&pb::PretrainSettings> for PretrainConfig {
+    type Error = CoreError;
+    /// Every field is required (no zero means "a default"); the result is validated.
+    fn try_from(s: &pb::PretrainSettings) -> Result<Self> {
+        let named = |field: &str, value: &str, expected: &str| {
+            CoreError::Config(format!(
+                "pretrain.{field}: {value:?} is not one of {expected}"
+            ))
+        };
+        let p = Self {
+            optimizer: clap::ValueEnum::from_str(&s.optimizer, false)
+                .map_err(|_| named("optimizer", &s.optimizer, "rmsprop, adam"))?,
+            lr: s.lr,
+            batches: s.batches,
+            batch_size: s.batch_size as usize,
+            quantiles: s.quantiles as usize,
+            seed: s.seed,
+            samples: clap::ValueEnum::from_str(&s.samples, false)
+                .map_err(|_| named("samples", &s.samples, "reset"))?,
+        };
+        p.validate()?;
+        Ok(p)
     }
 }
 

@@ -131,11 +131,12 @@ pub fn resume(
 
 /// Refuses `run_dir` when its checkpoint belongs to a run of other settings (no
 /// checkpoint: a fresh run, accepted). Reads only the checkpoint's header; call it
-/// before writing anything there.
-pub fn check_settings(run_dir: &Path, config: &RunConfig) -> Result<()> {
+/// before writing anything there. Returns the weights sha256 of the PCPN the saved run
+/// used, which its continuation must use again.
+pub fn check_settings(run_dir: &Path, config: &RunConfig) -> Result<Option<String>> {
     let path = run_dir.join(CHECKPOINT_FILE);
     if !path.exists() {
-        return Ok(());
+        return Ok(None);
     }
     let unreadable = |e: String| CoreError::Checkpoint(format!("{}: {e}", path.display()));
     let file = std::fs::File::open(&path).map_err(|e| unreadable(e.to_string()))?;
@@ -144,16 +145,19 @@ pub fn check_settings(run_dir: &Path, config: &RunConfig) -> Result<()> {
     same_settings(&path, meta.get("config").map_or("", String::as_str), config)
 }
 
-/// Every setting must match but the length of the run: resuming with more steps
-/// trains on.
-fn same_settings(path: &Path, saved_json: &str, config: &RunConfig) -> Result<()> {
-    let saved: Option<RunConfig> = serde_json::from_str(saved_json).ok();
-    let same = saved.is_some_and(|mut saved| {
+/// Every setting must match but the length of the run (resuming with more steps
+/// trains on) and a PCPN not chosen yet (the saved run's is then the one to use).
+/// Returns the saved run's PCPN sha256.
+fn same_settings(path: &Path, saved_json: &str, config: &RunConfig) -> Result<Option<String>> {
+    if let Ok(mut saved) = serde_json::from_str::<RunConfig>(saved_json) {
+        let pcpn = saved.pcpn_sha256.clone();
         saved.steps = config.steps;
-        saved.hash() == config.hash()
-    });
-    if same {
-        return Ok(());
+        if config.pcpn_sha256.is_none() {
+            saved.pcpn_sha256 = None;
+        }
+        if saved.hash() == config.hash() {
+            return Ok(pcpn);
+        }
     }
     let run_dir = path.parent().unwrap_or(Path::new("."));
     Err(CoreError::Checkpoint(format!(

@@ -255,7 +255,7 @@ impl Trainer {
     /// `max_lag`, ordered by (actor id, sequence number).
     fn collect_round(&mut self, version: u64, stale: &mut u64) -> Option<Round> {
         let config = self.hub.config();
-        let (mode, want, max_lag) = (config.mode, config.actors as usize, config.max_lag);
+        let (mode, want, max_lag) = (config.mode, config.actors as usize, config.lag_limit());
         let timeout = self.hub.round_timeout();
         let mut deadline = Instant::now() + timeout;
         let mut pending: BTreeMap<(u32, u64), Rollout> = BTreeMap::new();

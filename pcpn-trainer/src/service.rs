@@ -1,10 +1,11 @@
 //! The `PcpnStore` gRPC service: lists the store, streams a PCPN file in chunks with
-//! its hashes, and pretrains one on request (once per env spec, never silently again).
+//! its hashes, and pretrains one on request (once per env spec and pretraining
+//! settings, never silently again).
 
-use crate::store::{spec_of, PcpnStore};
+use crate::store::{load_pcpn_bytes, PcpnStore};
 use crate::train::pretrain_pcpn;
 use bytes::Bytes;
-use saver_core::config::{Algo, RunConfig};
+use saver_core::config::PretrainConfig;
 use saver_core::env::EnvSpec;
 use saver_proto::pb::pcpn_store_server::{PcpnStore as PcpnStoreApi, PcpnStoreServer};
 use saver_proto::pb::{self, PcpnChunk};
@@ -32,22 +33,40 @@ pub struct PcpnService {
     access: Access,
 }
 
-/// The info message of a PCPN file's bytes.
+/// The info message of a PCPN file's bytes (checked as a whole: spec, settings, hash).
 pub fn info_of(bytes: &[u8]) -> Result<pb::PcpnInfo, Status> {
-    let (_, meta) = saver_proto::decode(bytes).map_err(|e| Status::data_loss(e.to_string()))?;
-    let spec = spec_of(bytes).ok_or_else(|| Status::data_loss("a stored file has no env_spec"))?;
+    let spec = crate::store::spec_of(bytes)
+        .ok_or_else(|| Status::data_loss("a stored file has no env_spec"))?;
+    let (_, info) = load_pcpn_bytes(
+        bytes,
+        std::path::Path::new("stored"),
+        &spec,
+        &candle_core::Device::Cpu,
+    )
+    .map_err(|e| Status::data_loss(e.to_string()))?;
     Ok(pb::PcpnInfo {
         env: Some((&spec).into()),
-        weights_sha256: meta.get("weights_sha256").cloned().unwrap_or_default(),
+        settings: Some((&info.pretrain).into()),
+        weights_sha256: info.weights_sha256,
         file_sha256: saver_proto::sha256_hex(bytes),
         size: bytes.len() as u64,
-        metadata: meta,
+        metadata: info.meta,
     })
 }
 
-fn spec_from(req: Option<&pb::EnvSpec>) -> Result<EnvSpec, Status> {
-    let s = req.ok_or_else(|| Status::invalid_argument("env is required"))?;
-    EnvSpec::try_from(s).map_err(|e| Status::invalid_argument(e.to_string()))
+/// The env spec and pretraining settings a request names (both required).
+fn wanted(
+    env: Option<&pb::EnvSpec>,
+    settings: Option<&pb::PretrainSettings>,
+) -> Result<(EnvSpec, PretrainConfig), Status> {
+    let invalid = |e: saver_core::CoreError| Status::invalid_argument(e.to_string());
+    let env = env.ok_or_else(|| Status::invalid_argument("env is required"))?;
+    let settings = settings
+        .ok_or_else(|| Status::invalid_argument("settings (PretrainSettings) are required"))?;
+    Ok((
+        EnvSpec::try_from(env).map_err(invalid)?,
+        PretrainConfig::try_from(settings).map_err(invalid)?,
+    ))
 }
 
 impl PcpnService {
@@ -78,12 +97,33 @@ impl PcpnService {
         self
     }
 
-    async fn read(&self, spec: &EnvSpec) -> Result<Option<Vec<u8>>, Status> {
-        match tokio::fs::read(self.store.path_for(spec)).await {
-            Ok(b) => Ok(Some(b)),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(Status::internal(format!("reading the store: {e}"))),
+    /// The stored file for `spec` and `p` with its info, if present; a file there that
+    /// holds another PCPN (renamed, or of other settings) is refused.
+    async fn stored(
+        &self,
+        spec: &EnvSpec,
+        p: &PretrainConfig,
+    ) -> Result<Option<(Vec<u8>, pb::PcpnInfo)>, Status> {
+        let path = self.store.path_for(spec, p);
+        let bytes = match tokio::fs::read(&path).await {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(Status::internal(format!("reading the store: {e}"))),
+        };
+        let info = info_of(&bytes)?;
+        let found = info.env.as_ref().and_then(|e| EnvSpec::try_from(e).ok());
+        let settings = info
+            .settings
+            .as_ref()
+            .and_then(|s| PretrainConfig::try_from(s).ok());
+        if found != Some(*spec) || settings != Some(*p) {
+            return Err(Status::failed_precondition(format!(
+                "the stored file for {spec} with {p:?} holds a PCPN for {} pretrained with {:?}",
+                found.map_or_else(|| "an unknown env".into(), |s| s.to_string()),
+                settings
+            )));
         }
+        Ok(Some((bytes, info)))
     }
 }
 
@@ -122,22 +162,13 @@ impl PcpnStoreApi for PcpnService {
         &self,
         req: Request<pb::GetPcpnRequest>,
     ) -> Result<Response<Self::GetStream>, Status> {
-        let spec = spec_from(req.get_ref().env.as_ref())?;
-        let bytes = self.read(&spec).await?.ok_or_else(|| {
+        let r = req.get_ref();
+        let (spec, p) = wanted(r.env.as_ref(), r.settings.as_ref())?;
+        let (bytes, info) = self.stored(&spec, &p).await?.ok_or_else(|| {
             Status::not_found(format!(
-                "no PCPN for {spec} in the store; ask Pretrain first"
+                "no PCPN for {spec} pretrained with {p:?} in the store; ask Pretrain first"
             ))
         })?;
-        let info = info_of(&bytes)?;
-        let stored = spec_of(&bytes);
-        if stored != Some(spec) {
-            return Err(Status::failed_precondition(format!(
-                "the stored file for {spec} was pretrained for {}",
-                stored
-                    .map(|s| s.to_string())
-                    .unwrap_or_else(|| "an unknown env".into())
-            )));
-        }
         let bytes = Bytes::from(bytes);
         let (tx, rx) = tokio::sync::mpsc::channel(4);
         tokio::spawn(async move {
@@ -161,42 +192,31 @@ impl PcpnStoreApi for PcpnService {
         req: Request<pb::PretrainRequest>,
     ) -> Result<Response<pb::PretrainReply>, Status> {
         let r = req.into_inner();
-        let spec = spec_from(r.env.as_ref())?;
+        let (spec, p) = wanted(r.env.as_ref(), r.settings.as_ref())?;
         let _one_at_a_time = self.pretraining.lock().await;
-        if let Some(bytes) = self.read(&spec).await? {
+        if let Some((_, info)) = self.stored(&spec, &p).await? {
             return Ok(Response::new(pb::PretrainReply {
-                info: Some(info_of(&bytes)?),
+                info: Some(info),
                 already_present: true,
             }));
         }
-        let mut config = RunConfig::paper(spec, Algo::Saver, 1);
-        config.seed = r.seed;
-        if r.batches > 0 {
-            config.pretrain.batches = r.batches;
-        }
-        if r.lr > 0.0 {
-            config.pretrain.lr = r.lr;
-        }
-        config
-            .validate()
-            .map_err(|e| Status::invalid_argument(e.to_string()))?;
         let store = self.store.clone();
         let saved = tokio::task::spawn_blocking(move || -> Result<PathBuf, String> {
             let dev = saver_core::device();
-            let every = (config.pretrain.batches / 20).max(1);
-            let report = pretrain_pcpn(&config, &dev, &mut |p| {
-                if p.batch % every == 0 {
+            let every = (p.batches / 20).max(1);
+            let report = pretrain_pcpn(&spec, &p, &dev, &mut |b| {
+                if b.batch % every == 0 {
                     tracing::info!(
                         "pretraining {spec}: batch {}/{} loss {:.4}",
-                        p.batch,
-                        p.batches,
-                        p.loss
+                        b.batch,
+                        b.batches,
+                        b.loss
                     );
                 }
             })
             .map_err(|e| e.to_string())?;
             let info = store
-                .save(&spec, &report.tensors, report.meta)
+                .save(&spec, &p, &report.tensors, report.meta)
                 .map_err(|e| e.to_string())?;
             Ok(info.path)
         })
@@ -232,15 +252,15 @@ pub async fn serve(
         .await
 }
 
-/// Fetches the PCPN of `config.env` from a store at `url` (asking it to pretrain one
-/// with `config`'s pretraining settings if it has none); returns the file's bytes after
-/// checking their length and sha256.
+/// Fetches the PCPN of `spec` pretrained with `p` from a store at `url` (asking it to
+/// pretrain one if it has none); returns the file's bytes after checking their length
+/// and sha256.
 pub async fn fetch(
     url: &str,
-    config: &RunConfig,
+    spec: &EnvSpec,
+    p: &PretrainConfig,
     access: &ClientAccess,
 ) -> Result<Vec<u8>, Status> {
-    let spec = &config.env;
     use saver_proto::pb::pcpn_store_client::PcpnStoreClient;
     use tokio_stream::StreamExt;
     let unavailable =
@@ -254,15 +274,17 @@ pub async fn fetch(
     let mut client = PcpnStoreClient::with_interceptor(channel, access.token.clone())
         .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
     let env = Some(pb::EnvSpec::from(spec));
+    let settings = Some(pb::PretrainSettings::from(p));
     client
         .pretrain(pb::PretrainRequest {
             env: env.clone(),
-            batches: config.pretrain.batches,
-            seed: config.seed,
-            lr: config.pretrain.lr,
+            settings: settings.clone(),
         })
         .await?;
-    let mut stream = client.get(pb::GetPcpnRequest { env }).await?.into_inner();
+    let mut stream = client
+        .get(pb::GetPcpnRequest { env, settings })
+        .await?
+        .into_inner();
     let mut bytes = Vec::new();
     let mut info: Option<pb::PcpnInfo> = None;
     while let Some(chunk) = stream.next().await {

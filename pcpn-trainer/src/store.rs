@@ -1,8 +1,12 @@
-//! The PCPN store: `pcpn-<env>-d<dim>.safetensors` files whose metadata name their env
-//! spec, architecture, training and a content hash. Loading verifies the spec and hash.
+//! The PCPN store: `pcpn-<env>-d<dim>-<key>.safetensors` files, one per env spec and
+//! pretraining settings (`key` hashes both), whose metadata name the spec, the
+//! settings, the architecture, the held-out loss and a content hash. Loading verifies
+//! the spec, the settings and the hash.
 
+use crate::train::PRETRAIN_META;
 use candle_core::Device;
 use saver_core::checkpoint;
+use saver_core::config::PretrainConfig;
 use saver_core::env::EnvSpec;
 use saver_core::nets::Pcpn;
 use saver_proto::NamedTensor;
@@ -24,6 +28,26 @@ pub enum StoreError {
         found: String,
         /// Spec the caller needs.
         wanted: EnvSpec,
+    },
+    /// The file was pretrained with other settings.
+    #[error("{path}: this PCPN was pretrained with {found}, but the run asks for {wanted}; a PCPN of other settings is never used in their place")]
+    SettingsMismatch {
+        /// File.
+        path: String,
+        /// Settings in the file.
+        found: String,
+        /// Settings the caller asked for.
+        wanted: String,
+    },
+    /// The run names other weights than the PCPN found.
+    #[error("{path}: its weights sha256 is {actual}, but the run uses the PCPN {wanted} (pcpn_sha256 of its config); pass that PCPN with --pcpn FILE, or drop pcpn_sha256 to use this one")]
+    Pinned {
+        /// File.
+        path: String,
+        /// Its weights hash.
+        actual: String,
+        /// The hash the run names.
+        wanted: String,
     },
     /// The tensors do not hash to the recorded sha256.
     #[error("{path}: weights sha256 is {actual}, metadata says {recorded}: the file is corrupt")]
@@ -53,6 +77,8 @@ pub enum StoreError {
 pub struct PcpnInfo {
     /// The env spec it models.
     pub spec: EnvSpec,
+    /// How it was pretrained.
+    pub pretrain: PretrainConfig,
     /// All metadata entries.
     pub meta: HashMap<String, String>,
     /// sha256 of the tensor contents (names, shapes, values).
@@ -95,19 +121,26 @@ impl PcpnStore {
         Self { dir }
     }
 
-    /// Where the PCPN of `spec` lives.
-    pub fn path_for(&self, spec: &EnvSpec) -> PathBuf {
-        self.dir.join(format!("pcpn-{spec}.safetensors"))
+    /// The store's folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
     }
 
-    /// Saves tensors with metadata (the spec and hash are added here).
+    /// Where the PCPN of `spec` pretrained with `p` lives.
+    pub fn path_for(&self, spec: &EnvSpec, p: &PretrainConfig) -> PathBuf {
+        self.dir
+            .join(format!("pcpn-{spec}-{}.safetensors", p.key(spec)))
+    }
+
+    /// Saves tensors with metadata (spec, settings and hash are added here).
     pub fn save(
         &self,
         spec: &EnvSpec,
+        p: &PretrainConfig,
         tensors: &[NamedTensor],
         mut meta: HashMap<String, String>,
     ) -> Result<PcpnInfo, StoreError> {
-        let path = self.path_for(spec);
+        let path = self.path_for(spec, p);
         let hash = weights_sha256(tensors);
         meta.insert("format".into(), FORMAT.into());
         meta.insert(
@@ -115,28 +148,49 @@ impl PcpnStore {
             serde_json::to_string(spec).unwrap_or_default(),
         );
         meta.insert("env".into(), spec.to_string());
+        meta.insert(
+            PRETRAIN_META.into(),
+            serde_json::to_string(p).unwrap_or_default(),
+        );
         meta.insert("weights_sha256".into(), hash.clone());
         checkpoint::save(&path, tensors, &meta)?;
         Ok(PcpnInfo {
             spec: *spec,
+            pretrain: *p,
             meta,
             weights_sha256: hash,
             path,
         })
     }
 
-    /// The PCPN of `spec` from the store, if present.
+    /// The PCPN of `spec` pretrained with `p`, if the store has it (a file of the
+    /// right name but other settings inside is refused).
     pub fn find(
         &self,
         spec: &EnvSpec,
+        p: &PretrainConfig,
         dev: &Device,
     ) -> Result<Option<(Pcpn, PcpnInfo)>, StoreError> {
-        let path = self.path_for(spec);
+        let path = self.path_for(spec, p);
         if !path.exists() {
             return Ok(None);
         }
-        load_pcpn(&path, spec, dev).map(Some)
+        let found = load_pcpn(&path, spec, dev)?;
+        same_pretraining(&found.1, p)?;
+        Ok(Some(found))
     }
+}
+
+/// Refuses a PCPN pretrained with settings other than `p`.
+pub fn same_pretraining(info: &PcpnInfo, p: &PretrainConfig) -> Result<(), StoreError> {
+    if info.pretrain == *p {
+        return Ok(());
+    }
+    Err(StoreError::SettingsMismatch {
+        path: info.path.display().to_string(),
+        found: format!("{:?}", info.pretrain),
+        wanted: format!("{p:?}"),
+    })
 }
 
 /// Loads a PCPN file, refusing one for another env spec or with a wrong hash.
@@ -190,6 +244,16 @@ pub fn load_pcpn_bytes(
             wanted: *wanted,
         });
     }
+    let pretrain_json = loaded.meta.get(PRETRAIN_META).ok_or_else(|| {
+        meta_err(
+            "no pretraining settings in metadata (a file of an older SAVER): pretrain it again",
+        )
+    })?;
+    let pretrain: PretrainConfig = serde_json::from_str(pretrain_json).map_err(|e| {
+        meta_err(&format!(
+            "pretraining settings {pretrain_json:?} are unreadable: {e}"
+        ))
+    })?;
     let recorded = loaded
         .meta
         .get("weights_sha256")
@@ -209,6 +273,7 @@ pub fn load_pcpn_bytes(
         pcpn,
         PcpnInfo {
             spec,
+            pretrain,
             meta: loaded.meta,
             weights_sha256: actual,
             path: path.to_path_buf(),

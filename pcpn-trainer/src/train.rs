@@ -2,9 +2,10 @@
 //! quantile loss on fresh samples.
 
 use candle_core::Device;
-use saver_core::config::{PretrainConfig, RunConfig};
+use saver_core::config::{PretrainConfig, PRETRAIN_EVAL_BATCHES};
+use saver_core::env::EnvSpec;
 use saver_core::nets::Pcpn;
-use saver_core::pretrain::{EnvSampler, Pretrainer};
+use saver_core::pretrain::{EnvSampler, Pretrainer, SampleSource};
 use saver_core::rng::streams;
 use saver_core::{checkpoint, CoreError};
 use std::collections::HashMap;
@@ -33,6 +34,9 @@ pub struct PretrainReport {
     pub held_out_loss: f32,
 }
 
+/// Metadata key of the pretraining settings (JSON of [`PretrainConfig`]).
+pub const PRETRAIN_META: &str = "pretrain";
+
 /// Stream of the held-out sample source (apart from training and tau draws).
 const HELD_OUT_SOURCE: u64 = 5;
 /// How often (in batches) the training loss is checked for divergence.
@@ -40,26 +44,33 @@ const CHECK_EVERY: u64 = 50;
 /// A loss this many times the initial held-out loss counts as diverged.
 const DIVERGED_FACTOR: f32 = 100.0;
 
-/// Pretrains a PCPN for `config.env` per `config.pretrain`; fails on divergence.
+/// Pretrains a PCPN for `spec` per `p` from the env's own samples; fails on
+/// divergence. Every entry point (`saver train`, `saver pretrain`, the Pretrain RPC)
+/// comes here, so the same settings give the same weights bit for bit.
 pub fn pretrain_pcpn(
-    config: &RunConfig,
+    spec: &EnvSpec,
+    p: &PretrainConfig,
     dev: &Device,
     progress: &mut dyn FnMut(&PretrainProgress),
 ) -> Result<PretrainReport, CoreError> {
-    let p: &PretrainConfig = &config.pretrain;
-    let source = Box::new(EnvSampler::new(config.env, config.seed, streams::PRETRAIN));
-    let mut held_out = EnvSampler::new(config.env, config.seed, HELD_OUT_SOURCE);
-    let k = config.saver.quantiles;
-    let mut trainer = Pretrainer::new(
-        source,
-        config.seed,
-        config.optimizer,
-        p.lr,
-        p.batch_size,
-        k,
-        dev,
-    )?;
-    let initial_loss = trainer.evaluate(&mut held_out, p.eval_batches, config.seed)?;
+    p.validate()?;
+    let source = Box::new(EnvSampler::new(*spec, p.seed, streams::PRETRAIN));
+    let mut held_out = EnvSampler::new(*spec, p.seed, HELD_OUT_SOURCE);
+    pretrain_from(source, &mut held_out, p, dev, progress)
+}
+
+/// Pretrains a PCPN on samples from `source` (any [`SampleSource`]), reporting its
+/// quantile loss on `held_out` before and after.
+pub fn pretrain_from(
+    source: Box<dyn SampleSource>,
+    held_out: &mut dyn SampleSource,
+    p: &PretrainConfig,
+    dev: &Device,
+    progress: &mut dyn FnMut(&PretrainProgress),
+) -> Result<PretrainReport, CoreError> {
+    let layout = source.layout();
+    let mut trainer = Pretrainer::new(source, p, dev)?;
+    let initial_loss = trainer.evaluate(held_out, PRETRAIN_EVAL_BATCHES, p.seed)?;
     let mut recent = 0.0f32;
     for batch in 1..=p.batches {
         let loss = trainer.step()?;
@@ -81,7 +92,7 @@ pub fn pretrain_pcpn(
             loss,
         });
     }
-    let held_out_loss = trainer.evaluate(&mut held_out, p.eval_batches, config.seed)?;
+    let held_out_loss = trainer.evaluate(held_out, PRETRAIN_EVAL_BATCHES, p.seed)?;
     if !held_out_loss.is_finite() || held_out_loss >= initial_loss {
         return Err(CoreError::Diverged(format!(
             "PCPN pretraining failed: held-out quantile loss {held_out_loss:.3e} is not below \
@@ -91,7 +102,6 @@ pub fn pretrain_pcpn(
     }
     let pcpn = trainer.frozen()?;
     let tensors = checkpoint::to_named_all(&pcpn.tensors()?)?;
-    let layout = config.env.layout();
     let meta = HashMap::from([
         (
             "architecture".to_string(),
@@ -105,21 +115,19 @@ pub fn pretrain_pcpn(
             "layout".to_string(),
             serde_json::to_string(&layout).unwrap_or_default(),
         ),
-        ("batches".to_string(), p.batches.to_string()),
-        ("batch_size".to_string(), p.batch_size.to_string()),
-        ("quantiles".to_string(), k.to_string()),
-        ("lr".to_string(), p.lr.to_string()),
         (
-            "optimizer".to_string(),
-            serde_json::to_string(&config.optimizer).unwrap_or_default(),
+            PRETRAIN_META.to_string(),
+            serde_json::to_string(p).unwrap_or_default(),
         ),
-        ("seed".to_string(), config.seed.to_string()),
         (
             "initial_held_out_loss".to_string(),
             initial_loss.to_string(),
         ),
         ("held_out_loss".to_string(), held_out_loss.to_string()),
-        ("held_out_batches".to_string(), p.eval_batches.to_string()),
+        (
+            "held_out_batches".to_string(),
+            PRETRAIN_EVAL_BATCHES.to_string(),
+        ),
     ]);
     Ok(PretrainReport {
         pcpn,

@@ -5,7 +5,6 @@
 use crate::faults::small;
 use crate::hostile::{learner_with, one_actor_learner, open_stream, register, register_and_roll};
 use crate::temp_dir;
-use saver::train::{start_learner, train_with};
 use saver_actor::grpc::GrpcLink;
 use saver_actor::{run_actor, Actor};
 use saver_core::link::{Assignment, LearnerLink, Registration};
@@ -15,6 +14,7 @@ use saver_core::CoreError;
 use saver_learner::InProcessLink;
 use saver_proto::pb::learner_client::LearnerClient;
 use saver_proto::{pb, ACTOR_ID_KEY, SESSION_KEY};
+use saver_run::train::{start_learner, train_with};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -331,7 +331,7 @@ fn a_run_killed_after_its_checkpoint_resumes_cleanly() {
         };
         run_actor(&mut link, &reg, &AtomicBool::new(false)).unwrap()
     });
-    let (_, outcome) = saver::train::follow(learner, &longer, false, |_| {}).unwrap();
+    let (_, outcome) = saver_run::train::follow(learner, &longer, false, |_| {}).unwrap();
     hub.close("test over");
     actor.join().unwrap();
     assert_eq!(outcome.steps, longer.steps);

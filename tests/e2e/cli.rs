@@ -38,13 +38,19 @@ fn text(o: &Output) -> String {
 fn bad_flags_and_files_get_clear_errors_not_panics() {
     let dir = temp_dir("badflags");
     let unknown = dir.join("unknown.toml");
-    std::fs::write(&unknown, "env = \"angle\"\nlearning_rate = 0.1\n").unwrap();
+    std::fs::write(&unknown, "algo = \"a2c\"\nlearning_rate = 0.1\n").unwrap();
     let broken = dir.join("broken.toml");
     std::fs::write(&broken, "dim = [").unwrap();
     let cases: Vec<(Vec<String>, &str)> = vec![
         (vec!["--dim".into(), "3".into()], "even"),
-        (vec!["--env".into(), "maze".into()], "unknown environment"),
-        (vec!["--algo".into(), "ppo".into()], "unknown algorithm"),
+        (
+            vec!["--env".into(), "maze".into()],
+            "invalid value 'maze' for '--env <ENV>'",
+        ),
+        (
+            vec!["--algo".into(), "ppo".into()],
+            "invalid value 'ppo' for '--algo <ALGO>'",
+        ),
         (vec!["--lr=-1".into()], "lr: -1"),
         (vec!["--gamma".into(), "2".into()], "gamma"),
         (vec!["--steps".into(), "0".into()], "steps"),
@@ -149,6 +155,25 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
         config.contains("seed = 0") && config.contains("algo = \"a2c\""),
         "{config}"
     );
+    // ... and repeats the run bit for bit in another folder.
+    let again = dir.join("again");
+    let cfg = run.join("config.toml");
+    let o = saver(&[
+        "train",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let (repeated, _) =
+        saver_proto::decode(&std::fs::read(again.join("checkpoint.safetensors")).unwrap()).unwrap();
+    assert_eq!(repeated.len(), tensors.len());
+    crate::assert_tensors_in(&tensors, &repeated);
+    assert_eq!(
+        std::fs::read_to_string(again.join("config.toml")).unwrap(),
+        config
+    );
     std::fs::remove_dir_all(dir).ok();
 }
 
@@ -169,13 +194,12 @@ fn pcpn_is_pretrained_once_reused_and_refused_for_another_env() {
         s,
     ]);
     assert!(o.status.success(), "{}", text(&o));
-    let file = store.join("pcpn-angle-d2.safetensors");
+    let file = crate::only_pcpn(&store);
     let (_, meta) = saver_proto::decode(&std::fs::read(&file).unwrap()).unwrap();
     for key in [
         "env_spec",
         "architecture",
-        "batches",
-        "seed",
+        "pretrain",
         "held_out_loss",
         "weights_sha256",
     ] {
@@ -184,12 +208,15 @@ fn pcpn_is_pretrained_once_reused_and_refused_for_another_env() {
             "PCPN metadata lacks {key}: {meta:?}"
         );
     }
-    assert_eq!(meta["batches"], "20");
+    let settings: saver_core::config::PretrainConfig =
+        serde_json::from_str(&meta["pretrain"]).unwrap();
+    assert_eq!(settings.batches, 20);
     assert!(meta["held_out_loss"].parse::<f32>().unwrap().is_finite());
 
     // train --algo saver finds it in the store instead of pretraining again.
     let run = dir.join("run");
-    let o = train_saver(&run, &["--dim", "2", "--pcpn-dir", s]);
+    let same = ["--dim", "2", "--pcpn-dir", s, "--pretrain-batches", "20"];
+    let o = train_saver(&run, &same);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     assert!(t.contains("Using the cached PCPN"), "{t}");
@@ -211,7 +238,7 @@ fn pcpn_is_pretrained_once_reused_and_refused_for_another_env() {
     let n = bytes.len();
     bytes[n - 3] ^= 0x40;
     std::fs::write(&file, &bytes).unwrap();
-    let o = train_saver(&run, &["--dim", "2", "--pcpn-dir", s]);
+    let o = train_saver(&run, &same);
     assert!(!o.status.success());
     assert!(text(&o).contains("corrupt"), "{}", text(&o));
     std::fs::remove_dir_all(dir).ok();

@@ -2,7 +2,6 @@
 //! silent actor, and a learner that resumes from its checkpoint.
 
 use crate::{assert_tensors_in, temp_dir};
-use saver::train::{start_learner, train_with};
 use saver_actor::grpc::GrpcLink;
 use saver_actor::run_actor;
 use saver_core::config::{Algo, RunConfig};
@@ -11,6 +10,7 @@ use saver_core::link::{LearnerLink, LinkError, Registration};
 use saver_learner::InProcessLink;
 use saver_proto::pb::learner_client::LearnerClient;
 use saver_proto::{pb, Access, AddToken, CheckToken, ClientAccess};
+use saver_run::train::{start_learner, train_with};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -31,7 +31,7 @@ fn every_learner_call_needs_the_token() {
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let access = Access::token(CheckToken::new(Some("tok-1")).unwrap());
     let url =
-        saver::services::serve_hub_on_loopback(&rt, learner.hub.clone(), access, None).unwrap();
+        saver_run::services::serve_hub_on_loopback(&rt, learner.hub.clone(), access, None).unwrap();
 
     let status_with = |token: Option<&str>| {
         rt.block_on(async {
@@ -102,7 +102,7 @@ fn a_sync_round_goes_ahead_without_a_silent_actor() {
             })
         })
         .collect();
-    let (_, outcome) = saver::train::follow(learner, &config, false, |_| {}).unwrap();
+    let (_, outcome) = saver_run::train::follow(learner, &config, false, |_| {}).unwrap();
     for a in actors {
         // One per version; the last may land before the learner says it is done.
         let sent = a.join().unwrap().rollouts;

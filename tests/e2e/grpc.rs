@@ -1,17 +1,17 @@
 //! The learner and actors over real gRPC on 127.0.0.1:0, through the generated client.
 
 use crate::{assert_tensors_in, temp_dir};
-use saver::bench::random_pcpn;
-use saver::train::{follow, start_learner, train_with};
 use saver_actor::grpc::GrpcLink;
 use saver_actor::run_actor;
-use saver_core::config::{Algo, RunConfig};
+use saver_core::config::{Algo, PretrainConfig, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
 use saver_core::link::{LearnerLink, Registration};
 use saver_core::nets::Pcpn;
 use saver_learner::grpc::{serve, LearnerService};
 use saver_proto::weights_dir::WeightsDir;
 use saver_proto::NamedTensor;
+use saver_run::bench::random_pcpn;
+use saver_run::train::{follow, start_learner, train_with};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -212,7 +212,8 @@ fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
     let url =
-        saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
+        saver_run::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None)
+            .unwrap();
     let spawn_actor = |i: u64| {
         let url = url.clone();
         std::thread::spawn(move || {
@@ -272,7 +273,7 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
     );
     config.actors = 2;
     config.mode = saver_core::config::Mode::Async;
-    config.max_lag = 0;
+    config.max_lag = Some(0);
     let dir = temp_dir("async");
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
@@ -327,8 +328,11 @@ fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
     let d4 = EnvSpec::new(EnvKind::Angle, 4).unwrap();
     let p = random_pcpn(&d2, &candle_core::Device::Cpu).unwrap();
     let tensors = saver_core::checkpoint::to_named_all(&p.tensors().unwrap()).unwrap();
-    let info = store.save(&d2, &tensors, Default::default()).unwrap();
-    std::fs::rename(&info.path, store.path_for(&d4)).unwrap();
+    let settings = PretrainConfig::recommended(EnvKind::Angle);
+    let info = store
+        .save(&d2, &settings, &tensors, Default::default())
+        .unwrap();
+    std::fs::rename(&info.path, store.path_for(&d4, &settings)).unwrap();
 
     let rt = tokio::runtime::Runtime::new().unwrap();
     let listener = rt
@@ -340,9 +344,13 @@ fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
         listener,
         std::future::pending(),
     ));
-    let config = RunConfig::paper(d4, Algo::Saver, 1);
     let err = rt
-        .block_on(fetch(&url, &config, &saver_proto::ClientAccess::default()))
+        .block_on(fetch(
+            &url,
+            &d4,
+            &settings,
+            &saver_proto::ClientAccess::default(),
+        ))
         .unwrap_err();
     assert_eq!(err.code(), tonic::Code::FailedPrecondition, "{err}");
     assert!(err.message().contains("angle-d2"), "{err}");

@@ -4,7 +4,6 @@
 
 use crate::{assert_tensors_in, temp_dir};
 use rand::Rng;
-use saver::train::start_learner;
 use saver_actor::Actor;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
@@ -13,6 +12,7 @@ use saver_core::nets::Policy;
 use saver_core::rng::rng_for;
 use saver_proto::pb::learner_client::LearnerClient;
 use saver_proto::{pb, ACKS_KEY, ACKS_REFUSALS, ACTOR_ID_KEY, SESSION_KEY};
+use saver_run::train::start_learner;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use tokio_stream::StreamExt;
@@ -212,7 +212,7 @@ pub type Served = (
     RunConfig,
     std::path::PathBuf,
     tokio::runtime::Runtime,
-    saver::train::LocalLearner,
+    saver_run::train::LocalLearner,
     Arc<saver_learner::Hub>,
     String,
 );
@@ -233,7 +233,8 @@ pub fn learner_with(name: &str, change: impl FnOnce(&mut RunConfig)) -> Served {
     let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
     let url =
-        saver::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None).unwrap();
+        saver_run::services::serve_hub_on_loopback(&rt, hub.clone(), Default::default(), None)
+            .unwrap();
     (config, dir, rt, learner, hub, url)
 }
 

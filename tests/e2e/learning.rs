@@ -1,9 +1,9 @@
 //! Whole runs in-process: A2C learns angle d = 2, and sync training is deterministic.
 
 use crate::{assert_tensors_in, temp_dir};
-use saver::train::train_with;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
+use saver_run::train::train_with;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
@@ -99,11 +99,11 @@ fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
     let mut config = RunConfig::recommended(spec, Algo::Saver, 150_000);
     config.pretrain.batches = 1_000;
     let store = saver_pcpn_trainer::PcpnStore::new(dir.join("pcpn"));
-    let (pcpn, _) = saver::pretrain::obtain_pcpn(&config, &store, None).unwrap();
+    let pcpn = saver_run::pretrain::pcpn_for_run(&mut config, None, &store, None).unwrap();
     let o = train_with(
         &config,
         &dir.join("run"),
-        Some(pcpn),
+        pcpn,
         Arc::new(AtomicBool::new(false)),
         false,
     )
@@ -125,7 +125,7 @@ fn faithful_saver_drives_mu_out_of_the_pcpn_domain() {
     let spec = EnvSpec::new(EnvKind::Angle, 4).unwrap();
     let config = RunConfig::paper(spec, Algo::Saver, 60_000);
     let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("results/pcpn/pcpn-angle-d4.safetensors");
+        .join("results/pcpn/pcpn-angle-d4-8dad6c2f9fa0.safetensors");
     let (pcpn, _) = saver_pcpn_trainer::load_pcpn(&file, &spec, &saver_core::device()).unwrap();
     let o = train_with(
         &config,

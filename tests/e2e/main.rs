@@ -6,6 +6,7 @@ mod faults;
 mod grpc;
 mod hostile;
 mod learning;
+mod pretrain;
 mod processes;
 mod tls;
 
@@ -17,6 +18,17 @@ pub fn temp_dir(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
+}
+
+/// The one PCPN file of a store folder (its name hashes the env and the settings).
+pub fn only_pcpn(store: &std::path::Path) -> PathBuf {
+    let files: Vec<PathBuf> = std::fs::read_dir(store)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "safetensors"))
+        .collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    files[0].clone()
 }
 
 /// Every tensor of `part` is in `whole` with the same shape and bit-identical values.

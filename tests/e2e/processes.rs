@@ -117,7 +117,7 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
     drop(actors);
 
     // The embedded run with the same PCPN file, seed and actor count.
-    let pcpn = d("store/pcpn-angle-d2.safetensors");
+    let pcpn = crate::only_pcpn(&dir.join("store")).display().to_string();
     let mut targs = vec!["train", "--pcpn", pcpn.as_str()];
     let emb_dir = d("embedded");
     targs.extend(run);

@@ -22,7 +22,7 @@ use std::fmt;
 pub const SUCCESS_RADIUS: f32 = 0.1;
 
 /// The paper's environment presets.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum EnvKind {
     /// Pairwise (step, angle) moves in a d-cube, d even (paper Fig. 3).
@@ -36,14 +36,11 @@ pub enum EnvKind {
 impl EnvKind {
     /// Parses `angle`, `select` or `arm`.
     pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "angle" => Ok(Self::Angle),
-            "select" => Ok(Self::Select),
-            "arm" => Ok(Self::Arm),
-            other => Err(CoreError::Config(format!(
-                "env: unknown environment {other:?} (expected angle, select or arm)"
-            ))),
-        }
+        <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            CoreError::Config(format!(
+                "env: unknown environment {s:?} (expected angle, select or arm)"
+            ))
+        })
     }
 
     /// The lower-case name.

@@ -1,11 +1,14 @@
-//! The `saver` command-line tool as a library: each module is one subcommand, so the
-//! end-to-end tests can drive a run in-process as well as through the binary.
+//! saver-run: what the `saver` binary's commands do, as a library above the learner,
+//! actor and pcpn-trainer crates: the embedded run (`train`), the service roles
+//! (`services`), the clients, the benchmarks and the plots. The binary only parses
+//! flags and calls one function here; the end-to-end tests call the same functions.
 
 pub mod access;
 pub mod bench;
 pub mod bench_services;
 pub mod clients;
 pub mod config;
+pub mod output;
 pub mod plot;
 pub mod pretrain;
 pub mod progress;

@@ -72,13 +72,13 @@ pub fn weights(args: WeightsArgs) -> Result<()> {
         anyhow::Ok(w.into_inner())
     })?;
     let decoded = decode_weights(&reply)?;
-    println!("version {}", decoded.version);
+    crate::out!("version {}", decoded.version);
     for t in &decoded.tensors {
-        println!("{:<16} {:?}", t.name, t.shape);
+        crate::out!("{:<16} {:?}", t.name, t.shape);
     }
     if let Some(path) = &args.out {
         saver_core::checkpoint::write_atomic(path, &reply.safetensors)?;
-        println!("weights written to {}", path.display());
+        crate::out!("weights written to {}", path.display());
     }
     Ok(())
 }
@@ -101,19 +101,19 @@ pub fn status(args: StatusArgs) -> Result<()> {
             .map_err(status_error)?;
         anyhow::Ok(r.into_inner())
     })?;
-    println!("algo {}", s.algo);
-    println!("env {}", s.env);
-    println!("mode {}", s.mode);
-    println!("version {}", s.version);
-    println!("steps {}", s.steps);
-    println!("actors {}", s.actors);
-    println!("pending {}", s.pending);
-    println!("accepted {}", s.accepted);
-    println!("rejected {}", s.rejected);
-    println!("stale_dropped {}", s.stale_dropped);
-    println!("skipped_updates {}", s.skipped_updates);
-    println!("mean_ep_len_100 {}", s.mean_ep_len_100);
-    println!("finished {}", s.finished);
+    crate::out!("algo {}", s.algo);
+    crate::out!("env {}", s.env);
+    crate::out!("mode {}", s.mode);
+    crate::out!("version {}", s.version);
+    crate::out!("steps {}", s.steps);
+    crate::out!("actors {}", s.actors);
+    crate::out!("pending {}", s.pending);
+    crate::out!("accepted {}", s.accepted);
+    crate::out!("rejected {}", s.rejected);
+    crate::out!("stale_dropped {}", s.stale_dropped);
+    crate::out!("skipped_updates {}", s.skipped_updates);
+    crate::out!("mean_ep_len_100 {}", s.mean_ep_len_100);
+    crate::out!("finished {}", s.finished);
     Ok(())
 }
 
@@ -155,6 +155,6 @@ pub fn healthcheck(args: HealthArgs) -> Result<()> {
     if status != tonic_health::pb::health_check_response::ServingStatus::Serving as i32 {
         bail!("{} is not serving (status {status})", args.addr);
     }
-    println!("{}: SERVING", args.addr);
+    crate::out!("{}: SERVING", args.addr);
     Ok(())
 }

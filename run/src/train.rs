@@ -2,13 +2,13 @@
 //! thread and the actors (threads over the in-process link); the same learner and actor
 //! code serve the distributed roles.
 
-use crate::config::{to_toml, TrainArgs};
+use crate::config::TrainArgs;
 use crate::plot::plot_runs;
-use crate::pretrain::obtain_pcpn;
+use crate::pretrain::pcpn_for_run;
 use crate::progress::Progress;
 use anyhow::{anyhow, Context, Result};
 use saver_actor::run_actor_from;
-use saver_core::config::{Algo, RunConfig};
+use saver_core::config::RunConfig;
 use saver_core::link::{PolicyWeights, Registration};
 use saver_core::nets::Pcpn;
 use saver_learner::{
@@ -23,7 +23,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 /// Runs `saver train` from flags.
 pub fn run(args: TrainArgs) -> Result<()> {
-    let config = args.run.resolve()?;
+    let mut config = args.run.resolve()?;
     let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
@@ -35,7 +35,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         eprintln!("\nstopping: finishing the current update and writing a checkpoint…");
     });
     let outcome = train(
-        &config,
+        &mut config,
         &out,
         &args.pcpn_dir,
         args.pcpn.as_deref(),
@@ -55,9 +55,10 @@ pub fn default_run_dir(c: &RunConfig) -> PathBuf {
     PathBuf::from("runs").join(format!("{}-{}-seed{}-{t}", c.env, c.algo.name(), c.seed))
 }
 
-/// Trains per `config` into `out`; `show` draws progress on stderr.
+/// Trains per `config` into `out` (SAVER: with the PCPN of `pcpn_file`, or of the
+/// store in `pcpn_dir`, recorded in `config`); `show` draws progress on stderr.
 pub fn train(
-    config: &RunConfig,
+    config: &mut RunConfig,
     out: &Path,
     pcpn_dir: &Path,
     pcpn_file: Option<&Path>,
@@ -66,12 +67,9 @@ pub fn train(
 ) -> Result<TrainerOutcome> {
     // Refuse a folder of another run before anything else (a PCPN's pretraining
     // included); start_learner checks again and only then writes into it.
-    saver_learner::checkpoint::check_settings(out, config)
+    let saved = saver_learner::checkpoint::check_settings(out, config)
         .with_context(|| format!("resuming from {}", out.display()))?;
-    let pcpn = match config.algo {
-        Algo::Saver => Some(obtain_pcpn(config, &PcpnStore::new(pcpn_dir), pcpn_file)?.0),
-        Algo::A2c => None,
-    };
+    let pcpn = pcpn_for_run(config, saved, &PcpnStore::new(pcpn_dir), pcpn_file)?;
     let outcome = train_with(config, out, pcpn, stop, show)?;
     let png = out.join("learning_curve.png");
     plot_runs(&[out.to_path_buf()], &png).context("drawing the learning curve")?;
@@ -107,13 +105,14 @@ pub fn start_learner(
     stop: Arc<AtomicBool>,
     checkpoint_every: u64,
 ) -> Result<LocalLearner> {
+    let config = &with_pcpn_recorded(config, pcpn.as_ref())?;
     let dev = saver_core::device();
     let mut algo = saver_core::algo::build(config, pcpn, &dev)?;
     let resumed = saver_learner::resume(out, config, algo.as_mut())
         .with_context(|| format!("resuming from {}", out.display()))?;
     std::fs::create_dir_all(out)
         .with_context(|| format!("creating run folder {}", out.display()))?;
-    std::fs::write(out.join("config.toml"), to_toml(config)).context("writing config.toml")?;
+    std::fs::write(out.join("config.toml"), config.to_toml()).context("writing config.toml")?;
     saver_core::checkpoint::remove_stale_temporaries(out);
     let mut state = resumed.unwrap_or_default();
     let start = &mut state.counters;
@@ -162,6 +161,24 @@ pub fn start_learner(
         start,
         actors,
     })
+}
+
+/// `config` with the weights sha256 of `pcpn` recorded (refused when it names another).
+fn with_pcpn_recorded(config: &RunConfig, pcpn: Option<&Pcpn>) -> Result<RunConfig> {
+    let mut c = config.clone();
+    if let Some(p) = pcpn {
+        let sha = saver_pcpn_trainer::weights_sha256(&saver_core::checkpoint::to_named_all(
+            &p.tensors()?,
+        )?);
+        if c.pcpn_sha256.as_ref().is_some_and(|want| *want != sha) {
+            anyhow::bail!(
+                "the run names the PCPN {} but was given {sha}",
+                c.pcpn_sha256.unwrap_or_default()
+            );
+        }
+        c.pcpn_sha256 = Some(sha);
+    }
+    Ok(c)
 }
 
 /// Follows the metrics rows until training ends, showing progress when `show`, and
@@ -242,7 +259,7 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
         .mean_ep_len_100
         .map(|m| format!("{m:.1}"))
         .unwrap_or_else(|| "n/a (no episode finished)".into());
-    println!(
+    crate::out!(
         "{} {}: {} steps, {} updates in {:.1} s of training ({:.0} steps/s){}; mean episode length (last 100): {len}",
         config.algo.name(),
         config.env,
@@ -252,9 +269,9 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
         o.steps as f64 / o.wall_s.max(1e-9),
         if o.interrupted { ", stopped early" } else { "" }
     );
-    println!("Outputs in {}:", out.display());
-    println!("  config      {}", out.join("config.toml").display());
-    println!("  metrics     {}", o.metrics.display());
-    println!("  plot        {}", out.join("learning_curve.png").display());
-    println!("  checkpoint  {}", o.checkpoint.display());
+    crate::out!("Outputs in {}:", out.display());
+    crate::out!("  config      {}", out.join("config.toml").display());
+    crate::out!("  metrics     {}", o.metrics.display());
+    crate::out!("  plot        {}", out.join("learning_curve.png").display());
+    crate::out!("  checkpoint  {}", o.checkpoint.display());
 }

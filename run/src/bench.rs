@@ -162,14 +162,19 @@ pub fn run(args: BenchArgs) -> Result<()> {
     }
     // candle runs on RAYON_NUM_THREADS (1 unless set: see `init_process`).
     let peak = matmul_peak(args.seconds)?;
-    println!(
+    crate::out!(
         "single-core matmul (1024^3, candle): {peak:.1} GFLOP/s; candle uses {} thread(s)\n",
         candle_core::utils::get_num_threads()
     );
-    println!("updates on one core (B = 128, K = 32; SAVER's PCPN blocks on 1 thread):");
-    println!(
+    crate::out!("updates on one core (B = 128, K = 32; SAVER's PCPN blocks on 1 thread):");
+    crate::out!(
         "{:<6} {:>3} {:>12} {:>14} {:>10} {:>12}",
-        "algo", "d", "ms/update", "steps/s", "GFLOP/s", "of peak"
+        "algo",
+        "d",
+        "ms/update",
+        "steps/s",
+        "GFLOP/s",
+        "of peak"
     );
     set_pcpn_threads(1);
     let mut single = Vec::new();
@@ -180,7 +185,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 single.push(s);
             }
             let gflops = flops / s / 1e9;
-            println!(
+            crate::out!(
                 "{:<6} {d:>3} {:>12.2} {:>14.0} {:>10.2} {:>11.1}%",
                 algo.name(),
                 s * 1e3,
@@ -193,14 +198,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
     set_pcpn_threads(args.threads.unwrap_or(0));
     let threads = pcpn_threads();
     if threads > 1 {
-        println!("\nSAVER with its PCPN blocks on {threads} threads (the default: one per core):");
-        println!(
+        crate::out!(
+            "\nSAVER with its PCPN blocks on {threads} threads (the default: one per core):"
+        );
+        crate::out!(
             "{:<6} {:>3} {:>12} {:>14} {:>14}",
-            "algo", "d", "ms/update", "steps/s", "vs 1 thread"
+            "algo",
+            "d",
+            "ms/update",
+            "steps/s",
+            "vs 1 thread"
         );
         for (&d, one) in args.dims.iter().zip(single) {
             let (s, _, n) = time_update(Algo::Saver, d, args.seconds)?;
-            println!(
+            crate::out!(
                 "{:<6} {d:>3} {:>12.2} {:>14.0} {:>13.2}x",
                 "saver",
                 s * 1e3,
@@ -209,7 +220,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             );
         }
     }
-    println!("\nrollout + update cycle (16 actors x 8 steps, in-process, angle):");
+    crate::out!("\nrollout + update cycle (16 actors x 8 steps, in-process, angle):");
     let dev = Device::Cpu;
     let out = std::env::temp_dir().join(format!("saver-bench-{}", std::process::id()));
     for (algo, d) in [(Algo::A2c, 4), (Algo::Saver, 4)] {
@@ -227,7 +238,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Arc::new(AtomicBool::new(false)),
             false,
         )?;
-        println!(
+        crate::out!(
             "  {:<6} d={d}: {} updates in {:.2} s = {:.0} env steps/s ({:.2} ms per cycle)",
             algo.name(),
             o.version,
@@ -245,19 +256,19 @@ pub fn run(args: BenchArgs) -> Result<()> {
 
 fn services(args: &BenchArgs) -> Result<()> {
     use crate::bench_services::{broadcast_latency, ingress, processes_vs_embedded};
-    println!("\nservices (gRPC over loopback, angle d=4, sync mode):");
+    crate::out!("\nservices (gRPC over loopback, angle d=4, sync mode):");
     for (algo, updates) in [
         (Algo::A2c, 4 * args.cycle_updates),
         (Algo::Saver, args.cycle_updates),
     ] {
         let (emb, bytes, files) = processes_vs_embedded(algo, updates)?;
-        println!(
+        crate::out!(
             "  {}: 16 actor processes vs embedded: {bytes:.0} vs {emb:.0} env steps/s = {:.2} (goal >= 0.8)",
             algo.name(),
             bytes / emb
         );
         if let Some(files) = files {
-            println!(
+            crate::out!(
                 "  {}:   the same, weights read from the learner's files in /dev/shm: {files:.0} env steps/s = {:.2}",
                 algo.name(),
                 files / emb
@@ -265,12 +276,12 @@ fn services(args: &BenchArgs) -> Result<()> {
         }
     }
     let rate = ingress(args.seconds.max(2.0))?;
-    println!(
+    crate::out!(
         "  learner ingress, no updates (A2C rollouts): {rate:.0} transitions/s = {:.2} of the 200k goal",
         rate / 200_000.0
     );
     let (p50, p99) = broadcast_latency(100)?;
-    println!(
+    crate::out!(
         "  weight broadcast to 16 subscribers (A2C agent): p50 {p50:.2} ms, p99 {p99:.2} ms (goal p99 < 20 ms)"
     );
     Ok(())

@@ -3,16 +3,17 @@
 //! and actor code as `saver train`, with gRPC between them.
 
 use crate::access::{client_tls, ClientArgs, ServerAccess};
-use crate::config::RunArgs;
-use crate::pretrain::obtain_pcpn;
+use crate::pretrain::{pcpn_for_run, record};
 use crate::train::{default_run_dir, follow, report, start_learner};
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use saver_actor::grpc::GrpcLink;
-use saver_actor::{run_actor, ActorError, ActorSummary};
+use saver_actor::remote::{run_remote, RemoteActor};
 use saver_core::config::Algo;
-use saver_core::link::{LinkError, Registration};
+use saver_core::config::RunConfig;
+use saver_core::nets::Pcpn;
+use saver_core::settings::RunSettings;
 use saver_learner::grpc::{LearnerService, TrainerStatus};
+use saver_learner::TrainerOutcome;
 use saver_pcpn_trainer::service::{fetch, PcpnService};
 use saver_pcpn_trainer::{load_pcpn_bytes, PcpnStore};
 use saver_proto::weights_dir::WeightsDir;
@@ -20,7 +21,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread()
@@ -79,7 +80,7 @@ async fn terminated() {
 pub struct LearnerArgs {
     /// The run's settings (as for `saver train`; --actors is the sync round size).
     #[command(flatten)]
-    pub run: RunArgs,
+    pub run: RunSettings,
     /// Address to serve the Learner service on.
     #[arg(long, default_value = "127.0.0.1:50051")]
     pub listen: SocketAddr,
@@ -142,7 +143,7 @@ fn positive_secs(s: &str) -> Result<f64, String> {
 
 /// Runs `saver learner`.
 pub fn learner(args: LearnerArgs) -> Result<()> {
-    let config = args.run.resolve()?;
+    let mut config = args.run.resolve()?;
     let check = args.access.check(args.listen)?;
     let pcpn_access = saver_proto::ClientAccess {
         token: args.access.token.client()?,
@@ -150,38 +151,89 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     };
     let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
     // A folder of another run is refused before anything is fetched or written.
-    saver_learner::checkpoint::check_settings(&out, &config)
+    let saved = saver_learner::checkpoint::check_settings(&out, &config)
         .with_context(|| format!("resuming from {}", out.display()))?;
     let rt = runtime()?;
     let pcpn = match (config.algo, args.pcpn.as_deref()) {
-        (Algo::A2c, _) => None,
         (Algo::Saver, Some(url)) if url.starts_with("http://") || url.starts_with("https://") => {
             let bytes = rt
-                .block_on(fetch(url, &config, &pcpn_access))
+                .block_on(fetch(url, &config.env, &config.pretrain, &pcpn_access))
                 .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
             let shown = PathBuf::from(format!("{url} ({})", config.env));
             let (pcpn, info) = load_pcpn_bytes(&bytes, &shown, &config.env, &saver_core::device())
                 .map_err(|e| anyhow::anyhow!("FAILED_PRECONDITION: {e}"))?;
+            let pinned = config.pcpn_sha256.clone().or(saved);
+            if pinned.as_ref().is_some_and(|p| *p != info.weights_sha256) {
+                bail!(
+                    "the PCPN from {url} has weights sha256 {}, but this run uses {}",
+                    info.weights_sha256,
+                    pinned.unwrap_or_default()
+                );
+            }
             eprintln!("PCPN from {url}: weights sha256 {}", info.weights_sha256);
+            record(&mut config, &info);
             Some(pcpn)
         }
-        (Algo::Saver, file) => {
-            let store = PcpnStore::new(&args.pcpn_dir);
-            Some(obtain_pcpn(&config, &store, file.map(Path::new))?.0)
-        }
+        (_, file) => pcpn_for_run(
+            &mut config,
+            saved,
+            &PcpnStore::new(&args.pcpn_dir),
+            file.map(Path::new),
+        )?,
     };
+    let listener = rt.block_on(bind(args.listen))?;
+    let opts = LearnerOptions {
+        out,
+        round_timeout: Duration::from_secs_f64(args.round_timeout),
+        checkpoint_every: args.checkpoint_every,
+        weights_dir: weights_dir(args.weights_dir.as_deref())?,
+        exit_when_done: args.exit_when_done,
+        access: check,
+    };
+    let out = opts.out.clone();
+    let outcome = serve_learner(&rt, &config, pcpn, opts, listener, terminated())?;
+    report(&config, &outcome, &out);
+    Ok(())
+}
+
+/// How a served learner runs besides its config.
+pub struct LearnerOptions {
+    /// Run folder (resumed when it holds a checkpoint of the same settings).
+    pub out: PathBuf,
+    /// Sync mode: how long a round waits for each actor.
+    pub round_timeout: Duration,
+    /// Checkpoint every this many updates (0: only at the end and on shutdown).
+    pub checkpoint_every: u64,
+    /// Where each version's weights are also written for actors on this machine.
+    pub weights_dir: Option<WeightsDir>,
+    /// Stop serving when training is done instead of waiting for `shutdown`.
+    pub exit_when_done: bool,
+    /// Token and TLS of the service.
+    pub access: saver_proto::Access,
+}
+
+/// Trains per `config` (SAVER around `pcpn`) while serving the Learner service on
+/// `listener`, until training is done, then (unless `exit_when_done`) serves the
+/// final weights until `shutdown`; `shutdown` before the end stops training after the
+/// current update with a checkpoint. The trainer runs on its own thread, the service
+/// on `rt`.
+pub fn serve_learner(
+    rt: &tokio::runtime::Runtime,
+    config: &RunConfig,
+    pcpn: Option<Pcpn>,
+    opts: LearnerOptions,
+    listener: tokio::net::TcpListener,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<TrainerOutcome> {
     let stop = Arc::new(AtomicBool::new(false));
-    let learner = start_learner(&config, &out, pcpn, stop.clone(), args.checkpoint_every)?;
-    learner
-        .hub
-        .set_round_timeout(Duration::from_secs_f64(args.round_timeout));
-    let dir = weights_dir(args.weights_dir.as_deref())?;
-    let shared = dir
+    let learner = start_learner(config, &opts.out, pcpn, stop.clone(), opts.checkpoint_every)?;
+    learner.hub.set_round_timeout(opts.round_timeout);
+    let shared = opts
+        .weights_dir
         .as_ref()
         .map(|d| (d.path().display().to_string(), d.remover()));
-    let (service, status) = LearnerService::new(learner.hub.clone(), dir);
-    let service = service.with_access(check);
-    let listener = rt.block_on(bind(args.listen))?;
+    let (service, status) = LearnerService::new(learner.hub.clone(), opts.weights_dir);
+    let service = service.with_access(opts.access);
     let addr = listener.local_addr()?;
     eprintln!(
         "learner for {} {} ({} mode, {} actors per round) serving on {addr}; run folder {}",
@@ -189,28 +241,29 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         config.env,
         config.mode.name(),
         config.actors,
-        out.display()
+        opts.out.display()
     );
     if let Some((path, _)) = &shared {
         eprintln!("weights also go to {path}, read there by actors that share it");
     }
-    let (done_tx, done_rx) = tokio::sync::watch::channel(false);
-    let exit_when_done = args.exit_when_done;
-    let server = rt.spawn(saver_learner::grpc::serve(service, listener, async move {
-        let mut done = done_rx;
-        tokio::select! {
-            _ = terminated() => {}
-            _ = async { while !(exit_when_done && *done.borrow_and_update()) {
-                if done.changed().await.is_err() { break; } } } => {}
-        }
-    }));
-    // Ctrl-C / SIGTERM also stop the trainer (it writes its checkpoint).
+    // `shutdown` stops the trainer (it writes its checkpoint) and the server.
+    let (quit_tx, quit_rx) = tokio::sync::watch::channel(false);
     let flag = stop.clone();
     rt.spawn(async move {
-        terminated().await;
+        shutdown.await;
         flag.store(true, Ordering::SeqCst);
+        let _ = quit_tx.send(true);
     });
-    let (_, outcome) = follow(learner, &config, true, |row| {
+    let (done_tx, done_rx) = tokio::sync::watch::channel(false);
+    let exit_when_done = opts.exit_when_done;
+    let server = rt.spawn(saver_learner::grpc::serve(service, listener, async move {
+        let (mut quit, mut done) = (quit_rx, done_rx);
+        tokio::select! {
+            _ = quit.wait_for(|q| *q) => {}
+            _ = done.wait_for(|d| exit_when_done && *d) => {}
+        }
+    }));
+    let (_, outcome) = follow(learner, config, true, |row| {
         status.send_replace(TrainerStatus {
             steps: row.steps,
             mean_ep_len_100: row.mean_ep_len_100,
@@ -220,8 +273,10 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         });
     })?;
     status.send_modify(|s| s.finished = true);
-    crate::plot::plot_runs(std::slice::from_ref(&out), &out.join("learning_curve.png"))?;
-    report(&config, &outcome, &out);
+    crate::plot::plot_runs(
+        std::slice::from_ref(&opts.out),
+        &opts.out.join("learning_curve.png"),
+    )?;
     if !exit_when_done && !stop.load(Ordering::SeqCst) {
         eprintln!("training finished; still serving the final weights on {addr} (Ctrl-C to stop)");
     }
@@ -231,7 +286,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         remover.remove();
     }
     served?.context("serving")?;
-    Ok(())
+    Ok(outcome)
 }
 
 /// `saver actor` flags.
@@ -259,69 +314,23 @@ pub struct ActorArgs {
     pub access: ClientArgs,
 }
 
-/// Delay before reconnect attempt `n` (0, 1, …): 100 ms doubling up to 5 s, times a
-/// random factor in [0.5, 1) so that actors cut off together do not return together.
-fn backoff(n: u32) -> Duration {
-    let base = 0.1 * 2f64.powi(n.min(6) as i32);
-    Duration::from_secs_f64(base.min(5.0) * rand::random_range(0.5..1.0))
-}
-
-/// Runs `saver actor`: registers, acts, and when the learner is lost (restart, cut
-/// link) reconnects and registers again, until the run finishes.
+/// Runs `saver actor` ([`run_remote`]).
 pub fn actor(args: ActorArgs) -> Result<()> {
-    let name = args
-        .name
-        .clone()
-        .unwrap_or_else(|| format!("actor-{}", std::process::id()));
-    let access = args.access.access()?;
-    let give_up = Duration::from_secs(args.connect_timeout);
-    let stop = AtomicBool::new(false);
-    let mut total = ActorSummary::default();
-    let mut attempt = 0u32;
-    let mut last_contact = Instant::now();
-    loop {
-        let reg = Registration {
-            name: name.clone(),
-            session: rand::random(),
-            n_envs: args.envs,
-        };
-        let outcome = GrpcLink::connect_with(&args.learner, &access)
-            .map(|l| l.with_shared_files(!args.no_shared_weights))
-            .map_err(ActorError::from)
-            .and_then(|mut link| run_actor(&mut link, &reg, &stop));
-        let why = match outcome {
-            Ok(s) => {
-                total.rollouts += s.rollouts;
-                total.steps += s.steps;
-                total.episodes += s.episodes;
-                if s.rollouts > 0 {
-                    attempt = 0;
-                    last_contact = Instant::now();
-                }
-                match s.lost {
-                    None => break,
-                    Some(why) => why,
-                }
-            }
-            Err(ActorError::Link(LinkError::Finished(_))) => break,
-            Err(ActorError::Link(LinkError::Closed(why))) => why,
-            Err(e) => return Err(e).with_context(|| format!("{name} at {}", args.learner)),
-        };
-        if last_contact.elapsed() > give_up {
-            bail!(
-                "{name}: no learner at {} for {} s ({why}); giving up",
-                args.learner,
-                give_up.as_secs()
-            );
-        }
-        let wait = backoff(attempt);
-        attempt += 1;
-        tracing::warn!("{name}: {why}; reconnecting in {wait:?}");
-        std::thread::sleep(wait);
-    }
+    let a = RemoteActor {
+        learner: args.learner.clone(),
+        name: args
+            .name
+            .clone()
+            .unwrap_or_else(|| format!("actor-{}", std::process::id())),
+        envs: args.envs,
+        give_up: Duration::from_secs(args.connect_timeout),
+        shared_weights: !args.no_shared_weights,
+        access: args.access.access()?,
+    };
+    let total = run_remote(&a, &AtomicBool::new(false))?;
     eprintln!(
-        "{name}: run finished; {} rollouts, {} env steps, {} episodes",
-        total.rollouts, total.steps, total.episodes
+        "{}: run finished; {} rollouts, {} env steps, {} episodes",
+        a.name, total.rollouts, total.steps, total.episodes
     );
     Ok(())
 }

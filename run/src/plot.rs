@@ -21,7 +21,7 @@ pub struct PlotArgs {
 /// Runs `saver plot`.
 pub fn run(args: PlotArgs) -> Result<()> {
     plot_runs(&args.runs, &args.out)?;
-    println!("Plot written to {}", args.out.display());
+    crate::out!("Plot written to {}", args.out.display());
     Ok(())
 }
 

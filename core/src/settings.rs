@@ -1,0 +1,495 @@
+//! Flags and `--config` files: the partial form of [`RunConfig`], one clap + serde
+//! definition whose fields carry RunConfig's names (nested tables included), so a
+//! config.toml a run wrote reads back as settings, and settings lay over any config.
+//!
+//! Resolution: the defaults of the chosen env and algorithm (the paper's with
+//! `faithful`), then the `--config` file, then the flags; each layer a TOML table laid
+//! over the one below ([`overlay`]), read back as a RunConfig and validated.
+
+use crate::config::{
+    Algo, Mode, OptimizerKind, PretrainConfig, RunConfig, SampleDistribution, DEFAULT_MAX_LAG,
+};
+use crate::env::{EnvKind, EnvSpec};
+use crate::{CoreError, Result};
+use clap::Args;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// Env of a run with no `--env`.
+pub const DEFAULT_ENV: EnvKind = EnvKind::Angle;
+/// Dimension of angle and select with no `--dim` (the arm's is 2).
+pub const DEFAULT_DIM: usize = 4;
+/// Algorithm with no `--algo`: A2C trains the default run in ~15 s; SAVER needs a
+/// PCPN first.
+pub const DEFAULT_ALGO: Algo = Algo::A2c;
+/// Length of a run in env steps with no `--steps`.
+pub const DEFAULT_STEPS: u64 = 1_000_000;
+
+/// The environment: `[env]` in a file.
+#[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct EnvSettings {
+    /// Environment preset [default: angle]
+    #[arg(id = "env", long = "env", value_name = "ENV", value_enum)]
+    pub kind: Option<EnvKind>,
+    /// State dimension d (angle: even; select: any; arm: 2) [default: 4; arm 2]
+    #[arg(long)]
+    pub dim: Option<usize>,
+}
+
+/// PCPN pretraining: `[pretrain]` in a file.
+#[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PretrainSettings {
+    #[arg(id = "pretrain_optimizer", long = "pretrain-optimizer", value_enum, help = help("Pretraining optimiser (TF1 constants)", "pretrain.optimizer"))]
+    pub optimizer: Option<OptimizerKind>,
+    #[arg(id = "pretrain_lr", long = "pretrain-lr", allow_hyphen_values = true, help = help("Pretraining learning rate", "pretrain.lr"))]
+    pub lr: Option<f64>,
+    #[arg(id = "pretrain_batches", long = "pretrain-batches", visible_alias = "batches", help = help("Pretraining batches (fresh samples each)", "pretrain.batches"))]
+    pub batches: Option<u64>,
+    #[arg(id = "pretrain_batch_size", long = "pretrain-batch-size", help = help("Transitions per pretraining batch", "pretrain.batch_size"))]
+    pub batch_size: Option<usize>,
+    #[arg(id = "pretrain_quantiles", long = "pretrain-quantiles", help = help("τ samples per pretraining transition", "pretrain.quantiles"))]
+    pub quantiles: Option<usize>,
+    #[arg(id = "pretrain_seed", long = "pretrain-seed", help = help("Seed of the PCPN's weights, samples and τ draws (apart from --seed, so runs of an env share a PCPN)", "pretrain.seed"))]
+    pub seed: Option<u64>,
+    #[arg(id = "pretrain_samples", long = "pretrain-samples", value_enum, help = help("Pretraining sample distribution", "pretrain.samples"))]
+    pub samples: Option<SampleDistribution>,
+}
+
+/// The policy head's bounds: `[head]` in a file.
+#[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HeadSettings {
+    #[arg(long, allow_hyphen_values = true, help = help("Bound the policy mean: μ = bound·tanh(raw); inf: unbounded linear μ", "head.mu_bound"))]
+    pub mu_bound: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("Lower clamp of log σ (-inf: none)", "head.log_std_min"))]
+    pub log_std_min: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("Upper clamp of log σ (inf: none)", "head.log_std_max"))]
+    pub log_std_max: Option<f64>,
+}
+
+/// SAVER's loss: `[saver]` in a file.
+#[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SaverSettings {
+    #[arg(long, help = help("SAVER: τ samples K per transition", "saver.quantiles"))]
+    pub quantiles: Option<usize>,
+    #[arg(long, allow_hyphen_values = true, help = help("SAVER: κ of the Huber quantile loss (0: the plain quantile loss)", "saver.kappa"))]
+    pub kappa: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("SAVER: weight of the monotonic penalty", "saver.lambda_mon"))]
+    pub lambda_mon: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("SAVER: weight of the vector critic's squared error", "saver.lambda_critic"))]
+    pub lambda_critic: Option<f64>,
+    #[arg(long, help = help("SAVER: centre the vector advantage per dimension over each batch and scale it", "saver.adv_norm"))]
+    pub adv_norm: Option<bool>,
+    #[arg(long, help = help("SAVER: with --adv-norm, one standard deviation over every dimension instead of one per dimension", "saver.adv_norm_joint"))]
+    pub adv_norm_joint: Option<bool>,
+    #[arg(long, allow_hyphen_values = true, help = help("SAVER: weight of the penalty on the mean head's raw output beyond ±2 (0: off)", "saver.mu_raw_penalty"))]
+    pub mu_raw_penalty: Option<f64>,
+}
+
+/// Every setting of a run, each optional: flags, or a `--config` file (the same names
+/// as TOML keys; unknown keys are errors).
+#[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RunSettings {
+    /// TOML file with any of these settings (a run's config.toml repeats that run;
+    /// flags win over it)
+    #[arg(long, value_name = "FILE")]
+    #[serde(skip)]
+    pub config: Option<PathBuf>,
+    /// Start from the paper's published settings for every field (SAVER: TF1 RMSProp
+    /// at the paper's rate, unbounded μ and log σ, raw advantages, a PCPN pretrained
+    /// the paper's number of batches) instead of the defaults that make SAVER learn
+    #[arg(long)]
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub faithful: bool,
+    #[arg(long, value_enum, help = help("Algorithm", "algo"))]
+    pub algo: Option<Algo>,
+    #[arg(long, help = help("Env steps (transitions) to train for", "steps"))]
+    pub steps: Option<u64>,
+    #[arg(long, help = help("Base seed of every random stream of the run", "seed"))]
+    pub seed: Option<u64>,
+    #[arg(long, help = help("Actors (sync: rollouts per update)", "actors"))]
+    pub actors: Option<u32>,
+    #[arg(long, help = help("Env instances per actor", "envs"))]
+    pub envs: Option<u32>,
+    #[arg(long, value_enum, help = help("Batching: one rollout per actor per version (sync) or any recent rollouts (async)", "mode"))]
+    pub mode: Option<Mode>,
+    /// Async mode: the largest policy lag accepted (refused in sync mode) [default: 4]
+    #[arg(long)]
+    pub max_lag: Option<u64>,
+    #[arg(long, help = help("Rollout length n", "rollout"))]
+    pub rollout: Option<u32>,
+    #[arg(long, allow_hyphen_values = true, help = help("Discount γ", "gamma"))]
+    pub gamma: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("Learning rate", "lr"))]
+    pub lr: Option<f64>,
+    #[arg(long, value_enum, help = help("Optimiser (TF1 constants)", "optimizer"))]
+    pub optimizer: Option<OptimizerKind>,
+    #[arg(long, help = help("Let the learning rate fall linearly to zero over the run", "lr_decay"))]
+    pub lr_decay: Option<bool>,
+    #[arg(long, allow_hyphen_values = true, help = help("Clip each update's global gradient norm to this (inf: no clipping)", "grad_clip"))]
+    pub grad_clip: Option<f64>,
+    #[arg(long, help = help("Episode step limit", "max_episode_steps"))]
+    pub max_episode_steps: Option<u32>,
+    #[arg(long, help = help("At the step limit, bootstrap the return from the value of the state reached (the paper: the limit is terminal)", "bootstrap_timeout"))]
+    pub bootstrap_timeout: Option<bool>,
+    #[arg(long, allow_hyphen_values = true, help = help("A2C: weight of the value loss", "value_coef"))]
+    pub value_coef: Option<f64>,
+    /// The environment.
+    #[command(flatten)]
+    #[serde(default)]
+    pub env: EnvSettings,
+    /// The policy head.
+    #[command(flatten)]
+    #[serde(default)]
+    pub head: HeadSettings,
+    /// SAVER's loss.
+    #[command(flatten)]
+    #[serde(default)]
+    pub saver: SaverSettings,
+    /// PCPN pretraining.
+    #[command(flatten)]
+    #[serde(default)]
+    pub pretrain: PretrainSettings,
+    /// SAVER: use only the PCPN with this weights sha256 (a run's config.toml names
+    /// the one it used)
+    #[arg(long, value_name = "SHA256")]
+    pub pcpn_sha256: Option<String>,
+}
+
+fn config_err(why: impl std::fmt::Display) -> CoreError {
+    CoreError::Config(why.to_string())
+}
+
+/// Lays `top` over `base`: every key of `top` replaces `base`'s, tables key by key.
+pub fn overlay(base: &mut toml::Table, top: toml::Table) {
+    for (k, v) in top {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(t)) => overlay(b, t),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+fn table_of<T: Serialize>(v: &T) -> Result<toml::Table> {
+    toml::Table::try_from(v).map_err(config_err)
+}
+
+impl RunSettings {
+    /// Reads a `--config` file.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| config_err(format!("reading config file {}: {e}", path.display())))?;
+        toml::from_str(&text)
+            .map_err(|e| config_err(format!("config file {}: {e}", path.display())))
+    }
+
+    /// Flags over the `--config` file over the defaults, validated.
+    pub fn resolve(&self) -> Result<RunConfig> {
+        let file = match &self.config {
+            Some(p) => Self::read(p)?,
+            None => Self::default(),
+        };
+        if let (Some(f), Some(a)) = (file.algo, self.algo) {
+            if f != a {
+                return Err(config_err(format!(
+                    "--algo {}: the config file {} holds {} settings (its learning rate, \
+                     optimiser and head would apply unchanged); drop --algo to repeat that \
+                     run, or leave out --config to start from {}'s defaults",
+                    a.name(),
+                    self.config.as_deref().unwrap_or(Path::new("")).display(),
+                    f.name(),
+                    a.name()
+                )));
+            }
+        }
+        let mut top = table_of(&file)?;
+        overlay(&mut top, table_of(self)?);
+        let merged: RunSettings = toml::Value::Table(top.clone())
+            .try_into()
+            .map_err(config_err)?;
+        let kind = merged.env.kind.unwrap_or(DEFAULT_ENV);
+        let dim = merged.env.dim.unwrap_or(match kind {
+            EnvKind::Arm => 2,
+            _ => DEFAULT_DIM,
+        });
+        let env = EnvSpec::new(kind, dim)?;
+        let algo = merged.algo.unwrap_or(DEFAULT_ALGO);
+        let steps = merged.steps.unwrap_or(DEFAULT_STEPS);
+        let base = if self.faithful || file.faithful {
+            RunConfig::paper(env, algo, steps)
+        } else {
+            RunConfig::recommended(env, algo, steps)
+        };
+        let mut table = table_of(&base)?;
+        top.remove("faithful");
+        overlay(&mut table, top);
+        if merged.mode == Some(Mode::Async) && merged.max_lag.is_none() {
+            table.insert(
+                "max_lag".into(),
+                toml::Value::Integer(DEFAULT_MAX_LAG as i64),
+            );
+        }
+        let config: RunConfig = toml::Value::Table(table).try_into().map_err(config_err)?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The env and pretraining settings alone (what `saver pretrain` uses).
+    pub fn resolve_pretrain(&self) -> Result<(EnvSpec, PretrainConfig)> {
+        let c = RunSettings {
+            algo: Some(Algo::Saver),
+            ..self.clone()
+        }
+        .resolve()?;
+        Ok((c.env, c.pretrain))
+    }
+}
+
+/// The defaults of one setting, read from the configs they come from.
+struct Defaults {
+    /// (label, config) pairs: a2c and saver defaults, the paper's saver; on angle d=4.
+    angle: Vec<(&'static str, toml::Table)>,
+    /// The same on select and arm.
+    others: Vec<toml::Table>,
+}
+
+fn defaults() -> &'static Defaults {
+    static D: OnceLock<Defaults> = OnceLock::new();
+    D.get_or_init(|| {
+        let tables = |kind: EnvKind, dim: usize| -> Vec<toml::Table> {
+            let env = EnvSpec::new(kind, dim).expect("a preset");
+            [
+                RunConfig::recommended(env, Algo::A2c, DEFAULT_STEPS),
+                RunConfig::recommended(env, Algo::Saver, DEFAULT_STEPS),
+                RunConfig::paper(env, Algo::Saver, DEFAULT_STEPS),
+            ]
+            .iter()
+            .map(|c| table_of(c).unwrap_or_default())
+            .collect()
+        };
+        let angle = tables(EnvKind::Angle, 4);
+        let mut others = tables(EnvKind::Select, 4);
+        others.extend(tables(EnvKind::Arm, 2));
+        Defaults {
+            angle: ["a2c", "saver", "--faithful saver"]
+                .into_iter()
+                .zip(angle)
+                .collect(),
+            others,
+        }
+    })
+}
+
+fn lookup<'a>(table: &'a toml::Table, path: &str) -> Option<&'a toml::Value> {
+    let mut parts = path.split('.');
+    let mut v = table.get(parts.next()?)?;
+    for p in parts {
+        v = v.as_table()?.get(p)?;
+    }
+    Some(v)
+}
+
+fn shown(v: Option<&toml::Value>) -> String {
+    match v {
+        Some(toml::Value::String(s)) => s.clone(),
+        Some(v) => v.to_string(),
+        None => "none".into(),
+    }
+}
+
+/// `text` followed by the setting's real defaults, from the default configs
+/// themselves: `[default: X]` when every algorithm shares it, else one per algorithm.
+pub fn help(text: &str, path: &str) -> String {
+    let d = defaults();
+    let values: Vec<(&str, String)> = d
+        .angle
+        .iter()
+        .map(|(label, t)| (*label, shown(lookup(t, path))))
+        .collect();
+    let first = &values[0].1;
+    let mut out = if values.iter().all(|(_, v)| v == first) {
+        format!("{text} [default: {first}]")
+    } else {
+        let parts: Vec<String> = values.iter().map(|(l, v)| format!("{l} {v}")).collect();
+        format!("{text} [default: {}]", parts.join(", "))
+    };
+    let on_angle = |t: &toml::Table| shown(lookup(t, path));
+    let varies = d
+        .others
+        .iter()
+        .zip(d.angle.iter().cycle())
+        .any(|(o, (_, a))| on_angle(o) != on_angle(a));
+    if varies {
+        out.push_str(" (on angle; select and arm: docs/ALGORITHM.md)");
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("saver-settings-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir.join(name)
+    }
+
+    /// A written config.toml reads back as settings that resolve to the same config,
+    /// on any base: the faithful SAVER's unbounded head and an A2C base included.
+    #[test]
+    fn written_config_resolves_back_equal() {
+        let env = EnvSpec::new(EnvKind::Select, 5).unwrap();
+        let mut bounded = RunConfig::recommended(env, Algo::Saver, 1000);
+        bounded.saver.kappa = Some(0.01);
+        bounded.seed = 9;
+        bounded.grad_clip = Some(0.5);
+        bounded.mode = Mode::Async;
+        bounded.max_lag = Some(2);
+        bounded.pretrain.seed = 4;
+        for c in [bounded, RunConfig::paper(env, Algo::Saver, 1000)] {
+            let p = temp("run.toml");
+            std::fs::write(&p, c.to_toml()).unwrap();
+            let back = RunSettings {
+                config: Some(p.clone()),
+                ..Default::default()
+            }
+            .resolve()
+            .unwrap();
+            assert_eq!(back, c);
+            std::fs::remove_file(p).ok();
+        }
+    }
+
+    /// Flags win over the file; the file over the defaults; unbounded values by name.
+    #[test]
+    fn flags_over_file_over_defaults() {
+        let p = temp("partial.toml");
+        std::fs::write(&p, "algo = \"saver\"\nlr = 0.5\n[head]\nmu_bound = inf\n").unwrap();
+        let s = RunSettings {
+            config: Some(p.clone()),
+            lr: Some(0.25),
+            head: HeadSettings {
+                log_std_min: Some(-3.0),
+                log_std_max: Some(f64::INFINITY),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let c = s.resolve();
+        // An open upper side of the clamp is named, not silently dropped.
+        assert!(c.unwrap_err().to_string().contains("log_std"));
+        let s = RunSettings {
+            head: HeadSettings {
+                log_std_min: Some(-3.0),
+                log_std_max: Some(-1.0),
+                ..Default::default()
+            },
+            ..s
+        };
+        let c = s.resolve().unwrap();
+        assert_eq!(c.algo, Algo::Saver);
+        assert_eq!(c.lr, 0.25);
+        assert_eq!(c.head.mu_bound, None);
+        assert_eq!(c.head.log_std_bounds, Some((-3.0, -1.0)));
+        // The rest is SAVER's default.
+        assert!(c.saver.adv_norm_joint);
+        assert_eq!(c.optimizer, OptimizerKind::Adam);
+        std::fs::remove_file(p).ok();
+    }
+
+    #[test]
+    fn impossible_combinations_and_unknown_keys_are_refused() {
+        let lag = RunSettings {
+            max_lag: Some(3),
+            ..Default::default()
+        };
+        assert!(lag.resolve().unwrap_err().to_string().contains("max_lag"));
+        let async_default = RunSettings {
+            mode: Some(Mode::Async),
+            ..Default::default()
+        };
+        assert_eq!(
+            async_default.resolve().unwrap().max_lag,
+            Some(DEFAULT_MAX_LAG)
+        );
+        let p = temp("unknown.toml");
+        std::fs::write(&p, "[saver]\nquantile = 3\n").unwrap();
+        let e = RunSettings::read(&p).unwrap_err().to_string();
+        assert!(e.contains("quantile"), "{e}");
+        std::fs::write(&p, "algo = \"a2c\"\n").unwrap();
+        let e = RunSettings {
+            config: Some(p.clone()),
+            algo: Some(Algo::Saver),
+            ..Default::default()
+        }
+        .resolve()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("a2c settings"), "{e}");
+        std::fs::remove_file(p).ok();
+    }
+
+    /// `--faithful` selects the paper's pretraining, so it never shares a PCPN with
+    /// the default.
+    #[test]
+    fn faithful_pretraining_has_its_own_key() {
+        let d = RunSettings::default().resolve_pretrain().unwrap();
+        let f = RunSettings {
+            faithful: true,
+            ..Default::default()
+        }
+        .resolve_pretrain()
+        .unwrap();
+        assert_eq!(d.1.batches, 5_000);
+        assert_eq!(f.1.batches, 100_000);
+        assert_ne!(d.1.key(&d.0), f.1.key(&f.0));
+    }
+
+    /// Every flag has its own id (a flattened field of the same name as another would
+    /// silently feed both) and clap's own checks pass.
+    #[test]
+    fn flags_are_well_formed() {
+        use clap::{Args, Command};
+        RunSettings::augment_args(Command::new("train")).debug_assert();
+        let m = RunSettings::augment_args(Command::new("train"))
+            .try_get_matches_from([
+                "train",
+                "--lr",
+                "0.5",
+                "--pretrain-lr",
+                "0.25",
+                "--log-std-min",
+                "-4.6",
+                "--log-std-max",
+                "-inf",
+            ])
+            .unwrap();
+        let s = <RunSettings as clap::FromArgMatches>::from_arg_matches(&m).unwrap();
+        assert_eq!(s.lr, Some(0.5));
+        assert_eq!(s.pretrain.lr, Some(0.25));
+        assert_eq!(s.head.log_std_min, Some(-4.6));
+        assert_eq!(s.head.log_std_max, Some(f64::NEG_INFINITY));
+    }
+
+    #[test]
+    fn help_shows_each_algorithms_default() {
+        assert_eq!(
+            help("Learning rate", "lr"),
+            "Learning rate [default: a2c 0.0003, saver 0.001, --faithful saver 0.01] \
+             (on angle; select and arm: docs/ALGORITHM.md)"
+        );
+        assert_eq!(help("Discount γ", "gamma"), "Discount γ [default: 0.99]");
+        assert_eq!(
+            help("Bound", "head.mu_bound"),
+            "Bound [default: a2c inf, saver 1.0, --faithful saver inf]"
+        );
+    }
+}
