@@ -1,8 +1,9 @@
 //! [`LearnerLink`] over gRPC: the actor's side of saver.proto. The actor stays a plain
 //! blocking loop; a small tokio runtime inside the link drives the streams.
 
-use saver_core::config::RunConfig;
-use saver_core::link::{Assignment, LearnerLink, LinkError, PolicyWeights, Registration};
+use saver_core::link::{
+    ActorSettings, Assignment, LearnerLink, LinkError, PolicyWeights, Registration,
+};
 use saver_core::rollout::Rollout;
 use saver_proto::pb;
 use saver_proto::pb::learner_client::LearnerClient;
@@ -319,13 +320,13 @@ impl LearnerLink for GrpcLink {
             }))
             .map_err(status_error)?
             .into_inner();
-        let config: RunConfig = serde_json::from_str(&reply.config_json)
-            .map_err(|e| LinkError::Rejected(format!("the learner's config is unreadable: {e}")))?;
-        if config.hash() != reply.config_hash {
-            return Err(LinkError::Rejected(
-                "the learner's config does not match its hash (different versions?)".into(),
-            ));
-        }
+        let settings = reply
+            .settings
+            .as_ref()
+            .ok_or_else(|| LinkError::Rejected("the learner's reply has no run settings".into()))
+            .and_then(|s| {
+                ActorSettings::try_from(s).map_err(|e| LinkError::Rejected(e.to_string()))
+            })?;
         let files = (self.shared_files && !reply.weights_dir.is_empty())
             .then(|| PathBuf::from(&reply.weights_dir))
             .filter(|dir| shares(dir, &reply.weights_dir_id));
@@ -344,8 +345,7 @@ impl LearnerLink for GrpcLink {
         Ok(Assignment {
             actor_id: reply.actor_id,
             session: reply.session,
-            config,
-            config_hash: reply.config_hash,
+            settings,
         })
     }
 

@@ -4,10 +4,10 @@
 pub mod grpc;
 pub mod remote;
 
-use saver_core::config::{Mode, RunConfig};
+use saver_core::acting::ActingPolicy;
+use saver_core::config::Mode;
 use saver_core::env::{Env, EnvLayout};
-use saver_core::link::{Assignment, LearnerLink, LinkError, Registration};
-use saver_core::nets::{Action, Policy};
+use saver_core::link::{ActorSettings, Assignment, LearnerLink, LinkError, Registration};
 use saver_core::rng::{rng_for, streams, SaverRng};
 use saver_core::rollout::{ActorState, Episode, Rollout};
 use std::collections::BTreeMap;
@@ -57,28 +57,61 @@ pub struct Actor {
     rng: SaverRng,
     /// Env layout.
     layout: EnvLayout,
+    /// Payload values per step.
+    payload_width: usize,
     /// Rollout length n.
     n_steps: usize,
     /// Next sequence number.
     seq: u64,
 }
 
+/// Makes one env for a run (any [`Env`] whose layout is the run's).
+pub type EnvMaker<'a> = &'a dyn Fn(&ActorSettings) -> Result<Box<dyn Env>, saver_core::CoreError>;
+
+/// The built-in preset the run names.
+pub fn preset_env(s: &ActorSettings) -> Result<Box<dyn Env>, saver_core::CoreError> {
+    Ok(s.env.make(s.max_episode_steps))
+}
+
 impl Actor {
-    /// An actor for an assignment, with `n_envs` fresh envs reset from its own stream.
+    /// An actor for an assignment, with `n_envs` fresh preset envs reset from its own
+    /// stream.
     pub fn new(assignment: &Assignment, n_envs: usize) -> Self {
-        let c: &RunConfig = &assignment.config;
-        let layout = c.env.layout();
-        let mut rng = rng_for(c.seed, streams::ACTOR_BASE + assignment.actor_id as u64);
-        let mut envs = Vec::with_capacity(n_envs);
-        let mut obs = Vec::with_capacity(n_envs);
-        for _ in 0..n_envs {
-            let mut env = c.env.make(c.max_episode_steps);
+        let envs = (0..n_envs)
+            .map(|_| {
+                assignment
+                    .settings
+                    .env
+                    .make(assignment.settings.max_episode_steps)
+            })
+            .collect();
+        Self::with_envs(assignment, envs).expect("preset envs have the run's layout")
+    }
+
+    /// An actor for an assignment over the given envs (refused when one's layout is
+    /// not the run's), each reset from the actor's own stream.
+    pub fn with_envs(
+        assignment: &Assignment,
+        mut envs: Vec<Box<dyn Env>>,
+    ) -> Result<Self, saver_core::CoreError> {
+        let s = &assignment.settings;
+        let layout = s.env.layout();
+        if let Some(bad) = envs.iter().find(|e| e.layout() != layout) {
+            return Err(saver_core::CoreError::Config(format!(
+                "an env of layout {:?} cannot act in {} (layout {layout:?})",
+                bad.layout(),
+                s.env
+            )));
+        }
+        let mut rng = rng_for(s.seed, streams::ACTOR_BASE + assignment.actor_id as u64);
+        let mut obs = Vec::with_capacity(envs.len());
+        for env in envs.iter_mut() {
             let mut o = vec![0.0; layout.obs_dim];
             env.reset(&mut rng, &mut o);
-            envs.push(env);
             obs.push(o);
         }
-        Self {
+        let n_envs = envs.len();
+        Ok(Self {
             id: assignment.actor_id,
             session: assignment.session,
             envs,
@@ -86,13 +119,14 @@ impl Actor {
             running: vec![(0, 0.0); n_envs],
             rng,
             layout,
-            n_steps: c.rollout as usize,
+            payload_width: s.policy.payload_width(),
+            n_steps: s.rollout as usize,
             seq: 0,
-        }
+        })
     }
 
     /// Steps every env n times with `policy`; resets envs whose episode ends.
-    pub fn collect(&mut self, policy: &mut Policy) -> Rollout {
+    pub fn collect(&mut self, policy: &mut dyn ActingPolicy) -> Rollout {
         let (e, n, l) = (self.envs.len(), self.n_steps, self.layout);
         let mut r = Rollout {
             actor_id: self.id,
@@ -102,8 +136,7 @@ impl Actor {
             n_envs: e,
             n_steps: n,
             obs: Vec::with_capacity(e * (n + 1) * l.obs_dim),
-            mu: Vec::with_capacity(e * n * l.mu_dim()),
-            log_std: Vec::with_capacity(e * n * l.log_std_dim()),
+            payload: Vec::with_capacity(e * n * self.payload_width),
             actions: Vec::with_capacity(e * n * l.action_dim()),
             state_delta: Vec::with_capacity(e * n * l.aligned_dim),
             vector_reward: Vec::with_capacity(e * n * l.aligned_dim),
@@ -114,16 +147,15 @@ impl Actor {
             actor_state: None,
         };
         self.seq += 1;
-        let mut act = Action::default();
+        let (mut action, mut payload) = (Vec::new(), Vec::new());
         // Env-major layout: all n steps of env 0, then env 1, … (envs are independent).
         for i in 0..e {
             for t in 0..n {
                 r.obs.extend_from_slice(&self.obs[i]);
-                policy.act(&self.obs[i], &mut self.rng, &mut act);
-                let step = self.envs[i].step(&act.action, &mut self.obs[i]);
-                r.mu.extend_from_slice(&act.mu);
-                r.log_std.extend_from_slice(&act.log_std);
-                r.actions.extend_from_slice(&act.action);
+                policy.act(&self.obs[i], &mut self.rng, &mut action, &mut payload);
+                let step = self.envs[i].step(&action, &mut self.obs[i]);
+                r.payload.extend_from_slice(&payload);
+                r.actions.extend_from_slice(&action);
                 r.state_delta.extend_from_slice(&step.state_delta);
                 r.vector_reward.extend_from_slice(&step.vector_reward);
                 r.done.push(step.done());
@@ -208,9 +240,23 @@ pub fn run_actor_from(
     stop: &AtomicBool,
     saved: &BTreeMap<u32, ActorState>,
 ) -> Result<ActorSummary, ActorError> {
+    run_actor_with(link, reg, stop, saved, &preset_env)
+}
+
+/// [`run_actor_from`] over envs that `make_env` makes for the run (a user's own
+/// environment, say), `reg.n_envs` of them.
+pub fn run_actor_with(
+    link: &mut dyn LearnerLink,
+    reg: &Registration,
+    stop: &AtomicBool,
+    saved: &BTreeMap<u32, ActorState>,
+    make_env: EnvMaker<'_>,
+) -> Result<ActorSummary, ActorError> {
     let assignment = link.register(reg)?;
-    let layout = assignment.config.env.layout();
-    let mut actor = Actor::new(&assignment, reg.n_envs as usize);
+    let envs = (0..reg.n_envs)
+        .map(|_| make_env(&assignment.settings))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut actor = Actor::with_envs(&assignment, envs)?;
     if let Some(s) = saved.get(&assignment.actor_id) {
         actor.restore(s)?;
     }
@@ -218,7 +264,7 @@ pub fn run_actor_from(
     let mut want = 0u64;
     let mut pace = Pace::default();
     while !stop.load(Ordering::Relaxed) {
-        let got = match assignment.config.mode {
+        let got = match assignment.settings.mode {
             Mode::Sync => link.weights(want),
             Mode::Async if summary.rollouts == 0 => link.weights(0),
             Mode::Async => link.weights_within(want, pace.wait()),
@@ -236,8 +282,8 @@ pub fn run_actor_from(
             summary.first_version = weights.version;
         }
         pace.saw(weights.version);
-        let mut policy = Policy::new(weights, layout, assignment.config.head)?;
-        let rollout = actor.collect(&mut policy);
+        let mut policy = assignment.settings.policy.acting(weights)?;
+        let rollout = actor.collect(policy.as_mut());
         summary.steps += (rollout.n_envs * rollout.n_steps) as u64;
         summary.episodes += rollout.episodes.len() as u64;
         match link.push(rollout) {

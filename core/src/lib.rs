@@ -5,6 +5,7 @@
 //! RMSProp, PCPN pretraining and the SAVER and A2C updates. The learner, the actors and
 //! the pcpn-trainer are built from these pieces; none of them does loss maths itself.
 
+pub mod acting;
 pub mod algo;
 pub mod checkpoint;
 pub mod config;

@@ -2,7 +2,9 @@
 //! register, get weights of at least some version, hand over a rollout. The embedded
 //! run implements it in-process; the gRPC client implements it over the network.
 
-use crate::config::RunConfig;
+use crate::acting::PolicyFamily;
+use crate::config::{Algo, Mode, RunConfig};
+use crate::env::EnvSpec;
 use crate::rollout::Rollout;
 use saver_proto::NamedTensor;
 use std::sync::Arc;
@@ -28,10 +30,42 @@ pub struct Assignment {
     /// The learner's secret for this registration: every rollout and the rollout
     /// stream carry it; no other client can guess it.
     pub session: u64,
-    /// The run's validated config (env, algorithm, rollout length, seed).
-    pub config: RunConfig,
-    /// Hash of the config, so both sides can tell they agree.
-    pub config_hash: String,
+    /// What the actor needs of the run.
+    pub settings: ActorSettings,
+}
+
+/// What an actor of a run needs to know of it (RegisterReply.settings on the wire).
+#[derive(Clone, Debug)]
+pub struct ActorSettings {
+    /// The algorithm (for logs; the policy family is what acting needs).
+    pub algo: Algo,
+    /// Sync: one rollout per version; async: act on with the newest weights.
+    pub mode: Mode,
+    /// Steps n per rollout.
+    pub rollout: u32,
+    /// Base seed (actor i draws from stream `ACTOR_BASE + i`).
+    pub seed: u64,
+    /// The env's step limit.
+    pub max_episode_steps: u32,
+    /// The environment.
+    pub env: EnvSpec,
+    /// The behaviour policy: how to act and what each step records.
+    pub policy: Arc<dyn PolicyFamily>,
+}
+
+impl ActorSettings {
+    /// The settings of `config`'s actors.
+    pub fn of(config: &RunConfig) -> Self {
+        Self {
+            algo: config.algo,
+            mode: config.mode,
+            rollout: config.rollout,
+            seed: config.seed,
+            max_episode_steps: config.max_episode_steps,
+            env: config.env,
+            policy: crate::algo::policy_family(config),
+        }
+    }
 }
 
 /// One published version of the agent's weights, shared (never copied) by all readers.

@@ -1,4 +1,6 @@
-//! Losses of SPEC.md, "Losses", as candle tensor functions (element-wise, no reduction).
+//! The losses (docs/ALGORITHM.md §4, §5), as candle tensor functions (element-wise, no
+//! reduction) and as scalar functions with their derivatives (what the fused SAVER
+//! path calls per quantile):
 //!
 //! - quantile loss ρ_τ(δ) = (τ − 1{δ<0})·δ; Huber variant |τ − 1{δ<0}|·L_κ(δ)/κ;
 //! - monotonic penalty Huber_{κ=1}(relu(Q(τ_i) − Q(τ_k))) on pairs with τ_i < τ_k.
@@ -47,9 +49,77 @@ pub fn monotonic_penalty(q: &Tensor, tau: &Tensor) -> candle_core::Result<Tensor
     huber(&violation, 1.0)? * ordered
 }
 
+/// The quantile loss of one residual δ at τ (`kappa`: the Huber variant) and its
+/// derivative in δ: (ρ, dρ/dδ). The scalar form of [`quantile_loss`].
+#[inline(always)]
+pub fn quantile_rho(delta: f32, tau: f32, kappa: Option<f32>) -> (f32, f32) {
+    let w = tau - if delta < 0.0 { 1.0 } else { 0.0 };
+    match kappa {
+        None => (w * delta, w),
+        Some(kappa) => {
+            let (l, dl) = if delta.abs() <= kappa {
+                (0.5 * delta * delta, delta)
+            } else {
+                (kappa * (delta.abs() - 0.5 * kappa), kappa * delta.signum())
+            };
+            (w.abs() * l / kappa, w.abs() * dl / kappa)
+        }
+    }
+}
+
+/// Huber_1(relu(v)) of one ordered pair's violation v = q_a − q_b and its slope in v:
+/// with c = clamp(v, 0, 1), (c·(v − c/2), c). The scalar form of one entry of
+/// [`monotonic_penalty`].
+#[inline(always)]
+pub fn pair_penalty(v: f32) -> (f32, f32) {
+    let c = v.clamp(0.0, 1.0);
+    (c * (v - 0.5 * c), c)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn scalar_losses_by_hand_and_equal_to_the_tensor_forms() {
+        // ρ: δ = 0.5, τ = 0.25: w = 0.25, ρ = 0.125, ρ' = 0.25;
+        //    δ = -0.5, τ = 0.25: w = -0.75, ρ = 0.375, ρ' = -0.75.
+        assert_eq!(quantile_rho(0.5, 0.25, None), (0.125, 0.25));
+        assert_eq!(quantile_rho(-0.5, 0.25, None), (0.375, -0.75));
+        // Huber, κ = 1: δ = 0.5, τ = 0.25: |w| = 0.25, L = 0.125, L' = 0.5 →
+        // (0.03125, 0.125); δ = -2: |w| = 0.75, L = 1·(2 − 0.5) = 1.5, L' = -1 →
+        // (1.125, -0.75).
+        assert_eq!(quantile_rho(0.5, 0.25, Some(1.0)), (0.03125, 0.125));
+        assert_eq!(quantile_rho(-2.0, 0.25, Some(1.0)), (1.125, -0.75));
+        // Pairs: v = 0.5 → c = 0.5: 0.5·(0.5 − 0.25) = 0.125; v = 3 → c = 1:
+        // 3 − 0.5 = 2.5; v = -1: nothing.
+        assert_eq!(pair_penalty(0.5), (0.125, 0.5));
+        assert_eq!(pair_penalty(3.0), (2.5, 1.0));
+        assert_eq!(pair_penalty(-1.0).0, 0.0);
+        // The tensor forms give the same values.
+        let (d, tau) = ([0.5f32, -0.5, -2.0, 0.03], [0.25f32, 0.25, 0.25, 0.9]);
+        for kappa in [None, Some(1.0), Some(0.01)] {
+            let t = quantile_loss(&t(&d), &t(&tau), kappa)
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap();
+            for i in 0..4 {
+                let (rho, _) = quantile_rho(d[i], tau[i], kappa.map(|k| k as f32));
+                assert!(
+                    (rho - t[i]).abs() <= 1e-6 * t[i].abs().max(1.0),
+                    "{kappa:?} {i}"
+                );
+            }
+        }
+        let v = [0.5f32, 3.0, -1.0];
+        let h = huber(&t(&v).relu().unwrap(), 1.0)
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        for i in 0..3 {
+            assert_eq!(pair_penalty(v[i]).0.max(0.0), h[i]);
+        }
+    }
     use candle_core::Device;
 
     fn t(v: &[f32]) -> Tensor {

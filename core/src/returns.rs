@@ -42,9 +42,70 @@ pub fn n_step_returns(
     out
 }
 
+/// Normalises advantages over a batch (docs/ALGORITHM.md §6): `adv` is [B, d]
+/// row-major; each dimension is centred on its batch mean and divided by
+/// sqrt(var + 1e-8), with var the dimension's own batch variance or, with `joint`, the
+/// mean of the d variances (one scale for every dimension, so a dimension whose
+/// advantages are only noise stays small). Sums in f64.
+pub fn normalize_advantages(adv: &mut [f32], d: usize, joint: bool) {
+    let b = adv.len() / d.max(1);
+    if b == 0 {
+        return;
+    }
+    let mut mean = vec![0.0f64; d];
+    for row in adv.chunks_exact(d) {
+        for (m, &a) in mean.iter_mut().zip(row) {
+            *m += a as f64;
+        }
+    }
+    mean.iter_mut().for_each(|m| *m /= b as f64);
+    let mut var = vec![0.0f64; d];
+    for row in adv.chunks_exact(d) {
+        for ((v, &a), m) in var.iter_mut().zip(row).zip(&mean) {
+            *v += (a as f64 - m).powi(2);
+        }
+    }
+    var.iter_mut().for_each(|v| *v /= b as f64);
+    if joint {
+        let all = var.iter().sum::<f64>() / d as f64;
+        var.iter_mut().for_each(|v| *v = all);
+    }
+    for row in adv.chunks_exact_mut(d) {
+        for j in 0..d {
+            row[j] = ((row[j] as f64 - mean[j]) / (var[j] + 1e-8).sqrt()) as f32;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn advantages_are_centred_and_scaled_per_dimension_or_jointly() {
+        // B = 2, d = 2: rows (1, 10) and (3, 30). Means (2, 20); centred rows
+        // (-1, -10), (1, 10); variances (1, 100).
+        //   per dimension: (-1, -10)/(1, 10) = (-1, -1), and (1, 1);
+        //   joint: var = (1 + 100)/2 = 50.5, sqrt = 7.106335 → (-0.140719, -1.407195).
+        let mut a = [1.0f32, 10.0, 3.0, 30.0];
+        normalize_advantages(&mut a, 2, false);
+        let want = [-1.0f32, -1.0, 1.0, 1.0];
+        assert!(
+            a.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-6),
+            "{a:?}"
+        );
+        let mut a = [1.0f32, 10.0, 3.0, 30.0];
+        normalize_advantages(&mut a, 2, true);
+        let want = [-0.140719f32, -1.407195, 0.140719, 1.407195];
+        assert!(
+            a.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-5),
+            "{a:?}"
+        );
+        // A constant dimension becomes 0, not NaN (the 1e-8 under the root).
+        let mut a = [5.0f32, 5.0, 5.0];
+        normalize_advantages(&mut a, 1, false);
+        assert_eq!(a, [0.0; 3]);
+    }
 
     #[test]
     fn vector_returns_with_done_and_bootstrap() {

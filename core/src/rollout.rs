@@ -41,10 +41,10 @@ pub struct Rollout {
     pub n_steps: usize,
     /// [E, n+1, obs_dim]: observations o_0..o_n (o_n bootstraps the returns).
     pub obs: Vec<f32>,
-    /// [E, n, mu_dim]: behaviour μ.
-    pub mu: Vec<f32>,
-    /// [E, n, log_std_dim]: behaviour log σ.
-    pub log_std: Vec<f32>,
+    /// [E, n, payload width]: what the behaviour policy recorded per step, in the
+    /// layout its family declares ([`crate::acting::PolicyFamily`]; the Gaussian's:
+    /// μ then log σ).
+    pub payload: Vec<f32>,
     /// [E, n, action_dim]: sampled actions (unclipped; the choice as a one-hot).
     pub actions: Vec<f32>,
     /// [E, n, d]: change of the state-aligned part.
@@ -131,18 +131,18 @@ impl ActorState {
 }
 
 impl Rollout {
-    /// Checks every array against the layout and that all numbers are finite.
-    pub fn validate(&self, layout: &EnvLayout) -> Result<()> {
+    /// Checks every array against the layout and the payload width, and that all
+    /// numbers are finite.
+    pub fn validate(&self, layout: &EnvLayout, payload_width: usize) -> Result<()> {
         let (e, n) = (self.n_envs, self.n_steps);
         if e == 0 || n == 0 {
             return Err(CoreError::Data(format!(
                 "rollout has {e} envs and {n} steps; both must be >= 1"
             )));
         }
-        let arrays: [(&str, &[f32], usize); 6] = [
+        let arrays: [(&str, &[f32], usize); 5] = [
             ("obs", &self.obs, e * (n + 1) * layout.obs_dim),
-            ("mu", &self.mu, e * n * layout.mu_dim()),
-            ("log_std", &self.log_std, e * n * layout.log_std_dim()),
+            ("payload", &self.payload, e * n * payload_width),
             ("actions", &self.actions, e * n * layout.action_dim()),
             ("state_delta", &self.state_delta, e * n * layout.aligned_dim),
             (

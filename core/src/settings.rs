@@ -42,19 +42,19 @@ pub struct EnvSettings {
 #[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct PretrainSettings {
-    #[arg(id = "pretrain_optimizer", long = "pretrain-optimizer", value_enum, help = help("Pretraining optimiser (TF1 constants)", "pretrain.optimizer"))]
+    #[arg(id = "pretrain_optimizer", value_name = "OPTIMIZER", long = "pretrain-optimizer", value_enum, help = help("Pretraining optimiser (TF1 constants)", "pretrain.optimizer"))]
     pub optimizer: Option<OptimizerKind>,
-    #[arg(id = "pretrain_lr", long = "pretrain-lr", allow_hyphen_values = true, help = help("Pretraining learning rate", "pretrain.lr"))]
+    #[arg(id = "pretrain_lr", value_name = "LR", long = "pretrain-lr", allow_hyphen_values = true, help = help("Pretraining learning rate", "pretrain.lr"))]
     pub lr: Option<f64>,
-    #[arg(id = "pretrain_batches", long = "pretrain-batches", visible_alias = "batches", help = help("Pretraining batches (fresh samples each)", "pretrain.batches"))]
+    #[arg(id = "pretrain_batches", value_name = "N", long = "pretrain-batches", visible_alias = "batches", help = help("Pretraining batches (fresh samples each)", "pretrain.batches"))]
     pub batches: Option<u64>,
-    #[arg(id = "pretrain_batch_size", long = "pretrain-batch-size", help = help("Transitions per pretraining batch", "pretrain.batch_size"))]
+    #[arg(id = "pretrain_batch_size", value_name = "N", long = "pretrain-batch-size", help = help("Transitions per pretraining batch", "pretrain.batch_size"))]
     pub batch_size: Option<usize>,
-    #[arg(id = "pretrain_quantiles", long = "pretrain-quantiles", help = help("τ samples per pretraining transition", "pretrain.quantiles"))]
+    #[arg(id = "pretrain_quantiles", value_name = "K", long = "pretrain-quantiles", help = help("τ samples per pretraining transition", "pretrain.quantiles"))]
     pub quantiles: Option<usize>,
-    #[arg(id = "pretrain_seed", long = "pretrain-seed", help = help("Seed of the PCPN's weights, samples and τ draws (apart from --seed, so runs of an env share a PCPN)", "pretrain.seed"))]
+    #[arg(id = "pretrain_seed", value_name = "SEED", long = "pretrain-seed", help = help("Seed of the PCPN's weights, samples and τ draws (apart from --seed, so runs of an env share a PCPN)", "pretrain.seed"))]
     pub seed: Option<u64>,
-    #[arg(id = "pretrain_samples", long = "pretrain-samples", value_enum, help = help("Pretraining sample distribution", "pretrain.samples"))]
+    #[arg(id = "pretrain_samples", value_name = "SAMPLES", long = "pretrain-samples", value_enum, help = help("Pretraining sample distribution", "pretrain.samples"))]
     pub samples: Option<SampleDistribution>,
 }
 
@@ -316,6 +316,8 @@ pub fn help(text: &str, path: &str) -> String {
     let first = &values[0].1;
     let mut out = if values.iter().all(|(_, v)| v == first) {
         format!("{text} [default: {first}]")
+    } else if values[1].1 == *first {
+        format!("{text} [default: {first}; --faithful: {}]", values[2].1)
     } else {
         let parts: Vec<String> = values.iter().map(|(l, v)| format!("{l} {v}")).collect();
         format!("{text} [default: {}]", parts.join(", "))

@@ -2,8 +2,9 @@
 //! rollout becomes a domain [`Rollout`] only here, with every length checked against
 //! its declared sizes (the learner then checks it against the env layout).
 
-use crate::config::PretrainConfig;
+use crate::config::{Algo, PretrainConfig};
 use crate::env::{EnvKind, EnvLayout, EnvSpec};
+use crate::link::ActorSettings;
 use crate::rollout::{Episode, Rollout};
 use crate::{CoreError, Result};
 use saver_proto::pb;
@@ -26,11 +27,71 @@ impl From<&EnvLayout> for pb::EnvLayout {
 
 impl From<&EnvSpec> for pb::EnvSpec {
     fn from(s: &EnvSpec) -> Self {
+        let b = s.bounds();
         Self {
             kind: s.kind.name().to_string(),
             dim: s.dim as u32,
             layout: Some((&s.layout()).into()),
+            bounds: Some(pb::EnvBounds {
+                obs_low: b.obs_low,
+                obs_high: b.obs_high,
+                max_change: b.max_change,
+            }),
         }
+    }
+}
+
+impl From<&ActorSettings> for pb::RunSettings {
+    fn from(s: &ActorSettings) -> Self {
+        Self {
+            algo: s.algo.name().to_string(),
+            mode: s.mode.name().to_string(),
+            rollout: s.rollout,
+            seed: s.seed,
+            max_episode_steps: s.max_episode_steps,
+            env: Some((&s.env).into()),
+            policy: Some(pb::PolicySpec {
+                family: s.policy.name().to_string(),
+                payload_width: s.policy.payload_width() as u32,
+                payload_layout: s.policy.payload_layout(),
+                params: s.policy.params().into_iter().collect(),
+            }),
+        }
+    }
+}
+
+impl TryFrom<&pb::RunSettings> for ActorSettings {
+    type Error = CoreError;
+    /// Every field checked: a preset env of this build, a known policy family whose
+    /// payload width agrees.
+    fn try_from(s: &pb::RunSettings) -> Result<Self> {
+        let bad = |why: String| CoreError::Config(format!("the learner's settings: {why}"));
+        let env = EnvSpec::try_from(s.env.as_ref().ok_or_else(|| bad("no env".into()))?)?;
+        let p = s.policy.as_ref().ok_or_else(|| bad("no policy".into()))?;
+        let params = p.params.iter().map(|(k, v)| (k.clone(), *v)).collect();
+        let policy = crate::acting::family_from_wire(&p.family, env.layout(), &params)?;
+        if policy.payload_width() != p.payload_width as usize {
+            return Err(bad(format!(
+                "payload width {} where {} has {}",
+                p.payload_width,
+                p.family,
+                policy.payload_width()
+            )));
+        }
+        let mode = clap::ValueEnum::from_str(&s.mode, false)
+            .map_err(|_| bad(format!("mode {:?}", s.mode)))?;
+        if s.rollout == 0 || s.max_episode_steps == 0 {
+            return Err(bad("rollout and max_episode_steps must be >= 1".into()));
+        }
+        Ok(Self {
+            algo: Algo::parse(&s.algo)?,
+            mode,
+            rollout: s.rollout,
+            seed: s.seed,
+            max_episode_steps: s.max_episode_steps,
+            env,
+            policy,
+        })
     }
 }
 
@@ -90,8 +151,7 @@ impl From<&Rollout> for pb::Rollout {
             n_envs: r.n_envs as u32,
             n_steps: r.n_steps as u32,
             obs: r.obs.clone(),
-            mu: r.mu.clone(),
-            log_std: r.log_std.clone(),
+            payload: r.payload.clone(),
             actions: r.actions.clone(),
             state_delta: r.state_delta.clone(),
             vector_reward: r.vector_reward.clone(),
@@ -116,8 +176,7 @@ impl TryFrom<pb::Rollout> for Rollout {
     /// Checks sizes only; [`Rollout::validate`] checks shapes and values.
     fn try_from(r: pb::Rollout) -> Result<Self> {
         let total = r.obs.len()
-            + r.mu.len()
-            + r.log_std.len()
+            + r.payload.len()
             + r.actions.len()
             + r.state_delta.len()
             + r.vector_reward.len()
@@ -145,8 +204,7 @@ impl TryFrom<pb::Rollout> for Rollout {
             n_envs: r.n_envs as usize,
             n_steps: r.n_steps as usize,
             obs: r.obs,
-            mu: r.mu,
-            log_std: r.log_std,
+            payload: r.payload,
             actions: r.actions,
             state_delta: r.state_delta,
             vector_reward: r.vector_reward,

@@ -65,21 +65,30 @@ pub fn resume(
             CoreError::Checkpoint(format!("{}: {k:?} is not a number", path.display()))
         })
     };
-    if meta("format")? != CHECKPOINT_FORMAT {
+    let format = meta("format")?;
+    if format != CHECKPOINT_FORMAT {
         return Err(CoreError::Checkpoint(format!(
-            "{} is not a learner checkpoint",
+            "{} is a checkpoint of format {format:?}; this SAVER reads {CHECKPOINT_FORMAT:?}",
             path.display()
         )));
     }
     same_settings(&path, &meta("config")?, config)?;
     let tensors = checkpoint::to_candle(&c.tensors, &saver_core::device())?;
-    algo.load_state(&|n| tensors.get(n).cloned(), num("optimizer_steps")? as u64)?;
-    if let Some(pos) = c.meta.get("rng_word_pos") {
-        let pos = pos
-            .parse()
-            .map_err(|_| CoreError::Checkpoint(format!("{}: bad rng_word_pos", path.display())))?;
-        algo.set_rng_word_pos(pos);
-    }
+    // The algorithm's numbers are stored as `algo.<name>` entries of the metadata.
+    let numbers = c
+        .meta
+        .iter()
+        .filter_map(|(k, v)| Some((k.strip_prefix(ALGO_PREFIX)?.to_string(), v)))
+        .map(|(k, v)| {
+            v.parse().map(|n| (k.clone(), n)).map_err(|_| {
+                CoreError::Checkpoint(format!(
+                    "{}: {ALGO_PREFIX}{k} is not a number",
+                    path.display()
+                ))
+            })
+        })
+        .collect::<Result<_>>()?;
+    algo.restore_state(&|n| tensors.get(n).cloned(), &numbers)?;
     let counters = Counters {
         version: num("version")? as u64,
         steps: num("steps")? as u64,
@@ -104,7 +113,8 @@ pub fn resume(
             .unwrap_or(0),
     );
     // Saved actors: `actor.<id>.state` rows, `actor.<id>.rng` and `.seq` metadata.
-    let env_len = config.env.make(config.max_episode_steps).snapshot().len();
+    // Rows are [env snapshot, observation, steps, return]: the snapshot's length is
+    // what the row leaves after the observation (the learner builds no env).
     let obs_len = config.env.layout().obs_dim;
     let mut actors = ActorStates::new();
     for t in &c.tensors {
@@ -119,6 +129,7 @@ pub fn resume(
         let id: u32 = id.parse().map_err(|_| bad())?;
         let rng = num(&format!("actor.{id}.rng"))?;
         let seq = num(&format!("actor.{id}.seq"))? as u64;
+        let env_len = t.shape.get(1).map_or(0, |w| w.saturating_sub(obs_len + 2));
         let state = ActorState::from_rows(&t.shape, &t.data, env_len, obs_len, rng, seq)?;
         actors.insert(id, state);
     }
@@ -149,7 +160,16 @@ pub fn check_settings(run_dir: &Path, config: &RunConfig) -> Result<Option<Strin
 /// trains on) and a PCPN not chosen yet (the saved run's is then the one to use).
 /// Returns the saved run's PCPN sha256.
 fn same_settings(path: &Path, saved_json: &str, config: &RunConfig) -> Result<Option<String>> {
-    if let Ok(mut saved) = serde_json::from_str::<RunConfig>(saved_json) {
+    let saved = serde_json::from_str::<RunConfig>(saved_json).map_err(|e| {
+        CoreError::Checkpoint(format!(
+            "{}: its settings are unreadable here ({e}): a checkpoint of another SAVER \
+             version; nothing in that folder was changed. Start this run in another folder \
+             (--out DIR)",
+            path.display()
+        ))
+    })?;
+    {
+        let mut saved = saved;
         let pcpn = saved.pcpn_sha256.clone();
         saved.steps = config.steps;
         if config.pcpn_sha256.is_none() {
@@ -170,7 +190,10 @@ fn same_settings(path: &Path, saved_json: &str, config: &RunConfig) -> Result<Op
     )))
 }
 
-const CHECKPOINT_FORMAT: &str = "saver-learner-checkpoint/1";
+const CHECKPOINT_FORMAT: &str = "saver-learner-checkpoint/2";
+/// Prefix of the algorithm's numbers ([`saver_core::algo::AlgoState::numbers`]) in the
+/// checkpoint's metadata.
+const ALGO_PREFIX: &str = "algo.";
 
 /// Writes the learner's checkpoint to `path` atomically: every tensor of `algo` and
 /// its optimiser, the counters, the tau-stream position, the saved actors, the config
@@ -183,7 +206,8 @@ pub fn save(
     window: &EpisodeWindow,
     config: &RunConfig,
 ) -> Result<()> {
-    let mut tensors = checkpoint::to_named_all(&algo.state_tensors()?)?;
+    let state = algo.save_state()?;
+    let mut tensors = checkpoint::to_named_all(&state.tensors)?;
     tensors.extend(window.to_saved());
     let mut meta = HashMap::from([
         ("format".to_string(), CHECKPOINT_FORMAT.to_string()),
@@ -194,17 +218,13 @@ pub fn save(
         ("window.total".to_string(), window.total.to_string()),
         ("window.successes".to_string(), window.successes.to_string()),
         (
-            "optimizer_steps".to_string(),
-            algo.optimizer_steps().to_string(),
-        ),
-        (
             "config".to_string(),
             serde_json::to_string(config).unwrap_or_default(),
         ),
         ("config_hash".to_string(), config.hash()),
     ]);
-    if let Some(pos) = algo.rng_word_pos() {
-        meta.insert("rng_word_pos".to_string(), pos.to_string());
+    for (k, v) in &state.numbers {
+        meta.insert(format!("{ALGO_PREFIX}{k}"), v.to_string());
     }
     for (id, a) in actors {
         let (shape, data) = a.to_rows();

@@ -288,15 +288,10 @@ impl Learner for LearnerService {
         let a = blocking(move || hub.register_remote(&reg))
             .await?
             .map_err(link_status)?;
-        let config_json =
-            serde_json::to_string(&a.config).map_err(|e| Status::internal(e.to_string()))?;
         let (weights_dir, weights_dir_id) = self.weights_dir.clone().unwrap_or_default();
         Ok(Response::new(pb::RegisterReply {
             actor_id: a.actor_id,
-            config_json,
-            config_hash: a.config_hash,
-            env: Some((&a.config.env).into()),
-            mode: a.config.mode.name().to_string(),
+            settings: Some((&a.settings).into()),
             weights_dir,
             weights_dir_id,
             session: a.session,

@@ -6,7 +6,7 @@ use crate::warn::RateLimited;
 use saver_core::config::RunConfig;
 use saver_core::env::EnvLayout;
 use saver_core::limits::RolloutLimits;
-use saver_core::link::{Assignment, LinkError, PolicyWeights, Registration};
+use saver_core::link::{ActorSettings, Assignment, LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -71,10 +71,10 @@ struct State {
 
 /// Shared state between ingress and the trainer.
 pub struct Hub {
-    /// The run config handed to actors.
+    /// The run config.
     config: RunConfig,
-    /// Its hash.
-    config_hash: String,
+    /// What actors are told of it.
+    settings: ActorSettings,
     /// Env layout (rollouts are checked against it).
     layout: EnvLayout,
     /// The values a rollout may hold.
@@ -106,9 +106,13 @@ impl Hub {
     ) -> (Arc<Self>, Receiver<Rollout>) {
         let (tx, rx) = mpsc::sync_channel(queue_depth.max(1));
         let hub = Arc::new(Self {
-            config_hash: config.hash(),
+            settings: ActorSettings::of(&config),
             layout: config.env.layout(),
-            limits: RolloutLimits::for_run(&config),
+            limits: RolloutLimits::new(
+                config.env.layout(),
+                config.env.bounds(),
+                saver_core::algo::policy_family(&config),
+            ),
             refusals: RateLimited::default(),
             config,
             state: Mutex::new(State {
@@ -230,8 +234,7 @@ impl Hub {
         Ok(Assignment {
             actor_id,
             session,
-            config: self.config.clone(),
-            config_hash: self.config_hash.clone(),
+            settings: self.settings.clone(),
         })
     }
 
@@ -481,7 +484,8 @@ impl Hub {
             )));
         }
         let rejected = |e: saver_core::CoreError| LinkError::Rejected(e.to_string());
-        r.validate(&self.layout).map_err(rejected)?;
+        r.validate(&self.layout, self.settings.policy.payload_width())
+            .map_err(rejected)?;
         self.limits.check(r).map_err(rejected)?;
         ledger
             .check(r, self.config.max_episode_steps)

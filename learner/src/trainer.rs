@@ -215,7 +215,13 @@ impl Trainer {
                     lag_max,
                     stale_dropped,
                     skipped_updates: skipped,
-                    stats: stats.values,
+                    // In the columns' order, by name (NaN for a value not reported).
+                    stats: self
+                        .algo
+                        .stat_names()
+                        .iter()
+                        .map(|n| stats.get(n).unwrap_or(f32::NAN))
+                        .collect(),
                 };
                 // The row before the version: a resumed run learns from metrics.csv
                 // the newest version any client can have seen.

@@ -141,8 +141,13 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                     n_envs: 1,
                     n_steps: n,
                     obs: vec![0.1; (n + 1) * layout.obs_dim],
-                    mu: vec![0.0; n * layout.mu_dim()],
-                    log_std: vec![-1.0; n * layout.log_std_dim()],
+                    // The Gaussian's payload per step: μ = 0, log σ = -1.
+                    payload: (0..n)
+                        .flat_map(|_| {
+                            let mu = std::iter::repeat_n(0.0, layout.mu_dim());
+                            mu.chain(std::iter::repeat_n(-1.0, layout.log_std_dim()))
+                        })
+                        .collect(),
                     actions: vec![0.2; n * layout.action_dim()],
                     state_delta: vec![0.01; n * layout.aligned_dim],
                     vector_reward: vec![0.01; n * layout.aligned_dim],

@@ -7,7 +7,7 @@ use crate::hostile::{learner_with, one_actor_learner, open_stream, register, reg
 use crate::temp_dir;
 use saver_actor::grpc::GrpcLink;
 use saver_actor::{run_actor, Actor};
-use saver_core::link::{Assignment, LearnerLink, Registration};
+use saver_core::link::{ActorSettings, Assignment, LearnerLink, Registration};
 use saver_core::nets::Policy;
 use saver_core::rollout::{Batch, Rollout};
 use saver_core::CoreError;
@@ -92,8 +92,7 @@ fn extreme_finite_values_are_refused_and_a_poisoned_batch_changes_nothing() {
     let assignment = Assignment {
         actor_id: 0,
         session: 1,
-        config_hash: config.hash(),
-        config: config.clone(),
+        settings: ActorSettings::of(&config),
     };
     let mut policy = Policy::new(weights.clone(), layout, config.head).unwrap();
     let good: Rollout = Actor::new(&assignment, 1).collect(&mut policy);
@@ -369,11 +368,11 @@ fn a_link_that_the_learner_forgets_registers_again() {
     let a = link.register(&reg).unwrap();
     hub.unregister(a.actor_id, a.session);
     let w = link.weights(0).unwrap();
-    let mut policy = Policy::new(w, a.config.env.layout(), a.config.head).unwrap();
+    let mut policy = a.settings.policy.acting(w).unwrap();
     let mut actor = Actor::new(&a, 1);
     let mut lost = None;
     for _ in 0..50 {
-        match link.push(actor.collect(&mut policy)) {
+        match link.push(actor.collect(policy.as_mut())) {
             Ok(()) => std::thread::sleep(Duration::from_millis(20)),
             Err(e) => {
                 lost = Some(e);

@@ -136,7 +136,7 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
     let (tensors, meta) = saver_proto::decode(&bytes).unwrap();
     assert_eq!(meta["version"], "469");
     assert_eq!(meta["steps"], "60032");
-    assert_eq!(meta["optimizer_steps"], "469");
+    assert_eq!(meta["algo.optimizer_steps"], "469");
     for name in [
         "agent.l0.w",
         "agent.mu.w",

@@ -175,11 +175,11 @@ fn an_actor_reports_each_timeout_with_the_observation_it_reached() {
     let assignment = saver_core::link::Assignment {
         actor_id: 0,
         session: 1,
-        config_hash: config.hash(),
-        config,
+        settings: saver_core::link::ActorSettings::of(&config),
     };
     let r = saver_actor::Actor::new(&assignment, 1).collect(&mut policy);
-    r.validate(&layout).unwrap();
+    r.validate(&layout, assignment.settings.policy.payload_width())
+        .unwrap();
     assert_eq!(r.timeouts, vec![2, 5]);
     let d = layout.obs_dim;
     for (k, &t) in r.timeouts.iter().enumerate() {

@@ -7,7 +7,7 @@ use rand::Rng;
 use saver_actor::Actor;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvSpec};
-use saver_core::link::Assignment;
+use saver_core::link::{ActorSettings, Assignment};
 use saver_core::nets::Policy;
 use saver_core::rng::rng_for;
 use saver_proto::pb::learner_client::LearnerClient;
@@ -24,8 +24,7 @@ const CASES: usize = 100_000;
 fn floats(r: &mut pb::Rollout, k: usize) -> &mut Vec<f32> {
     match k {
         0 => &mut r.obs,
-        1 => &mut r.mu,
-        2 => &mut r.log_std,
+        1 | 2 => &mut r.payload,
         3 => &mut r.actions,
         4 => &mut r.state_delta,
         _ => &mut r.vector_reward,
@@ -180,9 +179,30 @@ pub async fn register(
     let assignment = Assignment {
         actor_id: reply.actor_id,
         session: reply.session,
-        config: config.clone(),
-        config_hash: reply.config_hash,
+        settings: ActorSettings::try_from(reply.settings.as_ref().unwrap()).unwrap(),
     };
+    // The reply's fields say what the run's config says.
+    let (s, want) = (&assignment.settings, ActorSettings::of(config));
+    assert_eq!(
+        (
+            s.algo,
+            s.mode,
+            s.rollout,
+            s.seed,
+            s.max_episode_steps,
+            s.env
+        ),
+        (
+            want.algo,
+            want.mode,
+            want.rollout,
+            want.seed,
+            want.max_episode_steps,
+            want.env
+        )
+    );
+    assert_eq!(s.policy.params(), want.policy.params());
+    assert_eq!(s.policy.payload_width(), want.policy.payload_width());
     (client, assignment)
 }
 

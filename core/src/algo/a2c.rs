@@ -41,6 +41,20 @@ pub struct A2c {
     dev: Device,
 }
 
+/// A2C's registration ([`super::entry`]).
+pub(crate) const ENTRY: super::Entry = super::Entry {
+    build: build_a2c,
+    policy: super::gaussian_policy,
+};
+
+fn build_a2c(
+    config: &RunConfig,
+    _pcpn: Option<crate::nets::Pcpn>,
+    dev: &Device,
+) -> Result<Box<dyn Algorithm>> {
+    Ok(Box::new(A2c::new(config, dev)?))
+}
+
 impl A2c {
     /// A fresh agent initialised from the run seed.
     pub fn new(config: &RunConfig, dev: &Device) -> Result<Self> {
@@ -117,11 +131,11 @@ impl Algorithm for A2c {
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         Ok(UpdateStats {
             values: vec![
-                policy_loss,
-                value_loss_v,
-                mu_abs_max,
-                log_std_mean,
-                grad_norm,
+                ("policy_loss", policy_loss),
+                ("value_loss", value_loss_v),
+                ("mu_abs_max", mu_abs_max),
+                ("log_std_mean", log_std_mean),
+                ("grad_norm", grad_norm),
             ],
         })
     }
@@ -130,18 +144,27 @@ impl Algorithm for A2c {
         checkpoint::to_named_all(&self.agent.params().tensors()?)
     }
 
-    fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
-        let mut t = self.agent.params().tensors()?;
-        t.extend(self.opt.slots());
-        Ok(t)
-    }
-
     fn optimizer_steps(&self) -> u64 {
         self.opt.steps()
     }
 
-    fn load_state(&mut self, get: &dyn Fn(&str) -> Option<Tensor>, steps: u64) -> Result<()> {
+    fn save_state(&self) -> Result<super::AlgoState> {
+        let mut tensors = self.agent.params().tensors()?;
+        tensors.extend(self.opt.slots());
+        let numbers = [(super::OPTIMIZER_STEPS.to_string(), self.opt.steps() as u128)];
+        Ok(super::AlgoState {
+            tensors,
+            numbers: numbers.into_iter().collect(),
+        })
+    }
+
+    fn restore_state(
+        &mut self,
+        get: &dyn Fn(&str) -> Option<Tensor>,
+        numbers: &std::collections::BTreeMap<String, u128>,
+    ) -> Result<()> {
         self.agent.params().load(get)?;
-        self.opt.restore(get, steps)
+        let steps = super::saved_number(numbers, super::OPTIMIZER_STEPS)?;
+        self.opt.restore(get, steps as u64)
     }
 }

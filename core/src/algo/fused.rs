@@ -22,6 +22,7 @@
 
 use crate::config::SaverConfig;
 use crate::embedding::{cosine_embedding_lanes, EMBED_DIM};
+use crate::loss::{pair_penalty, quantile_rho};
 use crate::nets::PCPN_HEAD_HIDDEN;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -272,31 +273,18 @@ fn transition_grad(
     order: &mut Vec<usize>,
 ) -> (f64, f64) {
     let k = qs.len();
+    let kappa = cfg.kappa.map(|k| k as f32);
     let mut la = 0.0f64;
     for i in 0..k {
-        let delta = target - qs[i];
-        let w = ts[i] - if delta < 0.0 { 1.0 } else { 0.0 };
-        let (rho, drho) = match cfg.kappa {
-            None => (w * delta, w),
-            Some(kappa) => {
-                let kappa = kappa as f32;
-                let (l, dl) = if delta.abs() <= kappa {
-                    (0.5 * delta * delta, delta)
-                } else {
-                    (kappa * (delta.abs() - 0.5 * kappa), kappa * delta.signum())
-                };
-                (w.abs() * l / kappa, w.abs() * dl / kappa)
-            }
-        };
+        let (rho, drho) = quantile_rho(target - qs[i], ts[i], kappa);
         la += (rho * adv) as f64;
         gs[i] += (-(drho * adv) as f64 * qn) as f32;
     }
     if cfg.lambda_mon == 0.0 {
         return (la, 0.0);
     }
-    // Pairs in ascending τ, each once, without branches: with c = clamp(v, 0, 1) for
-    // v = q_a − q_b, Huber_1(relu(v)) = c·(v − c/2) and its slope is c (c = 0 also when
-    // the τ are equal, which the strict < excludes).
+    // Pairs in ascending τ, each once, without branches: `pair_penalty` of
+    // v = q_a − q_b, times 0 when the τ are equal (the strict < excludes them).
     order.clear();
     order.extend(0..k);
     order.sort_unstable_by(|&x, &y| ts[x].total_cmp(&ts[y]));
@@ -306,10 +294,10 @@ fn transition_grad(
         let (qa, ta) = (qs[ia], ts[ia]);
         let mut ga = 0.0f32;
         for &ib in &order[a + 1..] {
-            let v = qa - qs[ib];
-            let c = v.clamp(0.0, 1.0) * f32::from(u8::from(ta < ts[ib]));
-            row_loss += c * (v - 0.5 * c);
-            let g = c * mn;
+            let ordered = f32::from(u8::from(ta < ts[ib]));
+            let (l, c) = pair_penalty(qa - qs[ib]);
+            row_loss += l * ordered;
+            let g = c * ordered * mn;
             ga += g;
             gs[ib] -= g;
         }

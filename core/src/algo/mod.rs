@@ -11,18 +11,32 @@ pub use fused::{pcpn_threads, set_pcpn_threads};
 pub use saver::{saver_actor_losses, tau_tensors, GradPath, Saver, SaverLosses};
 pub use saver_grad::{policy_grads, InputGrad, PcpnGrad};
 
+use crate::acting::PolicyFamily;
 use crate::config::{Algo, RunConfig};
-use crate::nets::Pcpn;
+use crate::nets::{Gaussian, Pcpn};
 use crate::rollout::Batch;
 use crate::{CoreError, Result};
 use candle_core::{Device, Tensor};
 use saver_proto::NamedTensor;
+use std::collections::BTreeMap;
+use std::sync::Arc;
 
-/// Losses and diagnostics of one update, in the order of [`Algorithm::stat_names`].
+/// Losses and diagnostics of one update, by name (the names of
+/// [`Algorithm::stat_names`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct UpdateStats {
-    /// Values, one per name.
-    pub values: Vec<f32>,
+    /// (name, value) pairs.
+    pub values: Vec<(&'static str, f32)>,
+}
+
+impl UpdateStats {
+    /// The value named `name`.
+    pub fn get(&self, name: &str) -> Option<f32> {
+        self.values
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|&(_, v)| v)
+    }
 }
 
 /// A learning algorithm: updates from batches and exposes its state.
@@ -35,34 +49,80 @@ pub trait Algorithm: Send {
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats>;
     /// The agent's weights (`agent.*`), what actors need.
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>>;
-    /// Everything a checkpoint needs: every trainable tensor and the optimiser slots.
-    fn state_tensors(&self) -> Result<Vec<(String, Tensor)>>;
     /// Optimiser steps taken.
     fn optimizer_steps(&self) -> u64;
-    /// Position of the learner's random stream (SAVER's tau draws), for checkpoints.
-    fn rng_word_pos(&self) -> Option<u128> {
-        None
-    }
-    /// Restores [`Algorithm::rng_word_pos`].
-    fn set_rng_word_pos(&mut self, _pos: u128) {}
-    /// Restores what [`Algorithm::state_tensors`] saved.
-    fn load_state(
+    /// Everything a checkpoint needs to go on exactly: every trainable tensor, the
+    /// optimiser slots, and numbers such as the step count and random-stream position.
+    fn save_state(&self) -> Result<AlgoState>;
+    /// Restores what [`Algorithm::save_state`] saved (`get` finds its tensors by name).
+    fn restore_state(
         &mut self,
         get: &dyn Fn(&str) -> Option<Tensor>,
-        optimizer_steps: u64,
+        numbers: &BTreeMap<String, u128>,
     ) -> Result<()>;
+}
+
+/// An algorithm's checkpointed state.
+#[derive(Debug, Default)]
+pub struct AlgoState {
+    /// Named tensors (weights, optimiser slots).
+    pub tensors: Vec<(String, Tensor)>,
+    /// Named counters (stored in the checkpoint's metadata).
+    pub numbers: BTreeMap<String, u128>,
+}
+
+/// Key of the optimiser's step count in [`AlgoState::numbers`].
+pub const OPTIMIZER_STEPS: &str = "optimizer_steps";
+/// Key of the learner's random-stream position (SAVER's τ draws).
+pub const RNG_WORD_POS: &str = "rng_word_pos";
+
+/// The number `key` of a saved state.
+pub(crate) fn saved_number(numbers: &BTreeMap<String, u128>, key: &str) -> Result<u128> {
+    numbers
+        .get(key)
+        .copied()
+        .ok_or_else(|| CoreError::Checkpoint(format!("the saved state has no {key}")))
+}
+
+/// Builds an algorithm's learner side from the run's config (and the frozen PCPN, for
+/// algorithms that use one).
+pub type Build = fn(&RunConfig, Option<Pcpn>, &Device) -> Result<Box<dyn Algorithm>>;
+
+/// What an algorithm brings: its learner and its actors' behaviour policy.
+#[derive(Clone, Copy)]
+pub struct Entry {
+    /// The learner side, from the run's config (and the frozen PCPN, for algorithms
+    /// that use one).
+    pub build: Build,
+    /// The behaviour policy actors run, and what its rollouts record per step.
+    pub policy: fn(&RunConfig) -> Arc<dyn PolicyFamily>,
+}
+
+/// The algorithms. Adding one: its files (an [`Algorithm`] and, unless it acts with an
+/// existing family, a [`PolicyFamily`]), a variant of [`Algo`], and one line here.
+pub fn entry(algo: Algo) -> Entry {
+    match algo {
+        Algo::A2c => a2c::ENTRY,
+        Algo::Saver => saver::ENTRY,
+    }
 }
 
 /// Builds the configured algorithm; SAVER needs its frozen PCPN.
 pub fn build(config: &RunConfig, pcpn: Option<Pcpn>, dev: &Device) -> Result<Box<dyn Algorithm>> {
-    match config.algo {
-        Algo::A2c => Ok(Box::new(A2c::new(config, dev)?)),
-        Algo::Saver => {
-            let pcpn =
-                pcpn.ok_or_else(|| CoreError::Config("algo saver needs a pretrained PCPN".into()))?;
-            Ok(Box::new(Saver::new(config, pcpn, dev)?))
-        }
-    }
+    (entry(config.algo).build)(config, pcpn, dev)
+}
+
+/// The behaviour policy of `config`'s actors.
+pub fn policy_family(config: &RunConfig) -> Arc<dyn PolicyFamily> {
+    (entry(config.algo).policy)(config)
+}
+
+/// The Gaussian MLP policy with the run's head (A2C and SAVER act with it).
+pub(crate) fn gaussian_policy(config: &RunConfig) -> Arc<dyn PolicyFamily> {
+    Arc::new(Gaussian {
+        layout: config.env.layout(),
+        head: config.head,
+    })
 }
 
 /// Diagnostics both algorithms report: max |μ| over the batch and mean log σ.

@@ -15,7 +15,7 @@ use crate::env::EnvLayout;
 use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
-use crate::returns::n_step_returns;
+use crate::returns::{n_step_returns, normalize_advantages};
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
@@ -126,6 +126,18 @@ pub fn mu_raw_penalty(raw: &Tensor, w: f64) -> Result<Tensor> {
     Ok((over.sqr()?.sum_all()? * (w / raw.dim(0)? as f64))?)
 }
 
+/// SAVER's registration ([`super::entry`]).
+pub(crate) const ENTRY: super::Entry = super::Entry {
+    build: build_saver,
+    policy: super::gaussian_policy,
+};
+
+fn build_saver(config: &RunConfig, pcpn: Option<Pcpn>, dev: &Device) -> Result<Box<dyn Algorithm>> {
+    let pcpn =
+        pcpn.ok_or_else(|| crate::CoreError::Config("algo saver needs a pretrained PCPN".into()))?;
+    Ok(Box::new(Saver::new(config, pcpn, dev)?))
+}
+
 impl Saver {
     /// A fresh agent and critic initialised from the run seed, around a frozen PCPN.
     pub fn new(config: &RunConfig, pcpn: Pcpn, dev: &Device) -> Result<Self> {
@@ -201,16 +213,9 @@ impl Algorithm for Saver {
         let returns = Tensor::from_vec(returns, (b, d), &self.dev)?;
         let mut advantage = (&returns - &value)?.detach();
         if self.cfg.adv_norm {
-            // Per dimension over the batch: zero mean, unit standard deviation (one
-            // standard deviation over every dimension with `adv_norm_joint`).
-            let centred = advantage.broadcast_sub(&advantage.mean_keepdim(0)?)?;
-            let var = centred.sqr()?.mean_keepdim(0)?;
-            let var = if self.cfg.adv_norm_joint {
-                var.mean_keepdim(1)?
-            } else {
-                var
-            };
-            advantage = centred.broadcast_div(&(var + 1e-8)?.sqrt()?)?;
+            let mut a = advantage.flatten_all()?.to_vec1::<f32>()?;
+            normalize_advantages(&mut a, d, self.cfg.adv_norm_joint);
+            advantage = Tensor::from_vec(a, (b, d), &self.dev)?;
         }
         let critic_loss = ((value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
 
@@ -261,7 +266,14 @@ impl Algorithm for Saver {
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         Ok(UpdateStats {
-            values: vec![actor, mon, critic, mu_abs_max, log_std_mean, grad_norm],
+            values: vec![
+                ("actor_loss", actor),
+                ("mon_loss", mon),
+                ("critic_loss", critic),
+                ("mu_abs_max", mu_abs_max),
+                ("log_std_mean", log_std_mean),
+                ("grad_norm", grad_norm),
+            ],
         })
     }
 
@@ -269,28 +281,35 @@ impl Algorithm for Saver {
         checkpoint::to_named_all(&self.agent.params().tensors()?)
     }
 
-    fn state_tensors(&self) -> Result<Vec<(String, Tensor)>> {
-        let mut t = self.agent.params().tensors()?;
-        t.extend(self.critic.params().tensors()?);
-        t.extend(self.opt.slots());
-        Ok(t)
-    }
-
     fn optimizer_steps(&self) -> u64 {
         self.opt.steps()
     }
 
-    fn load_state(&mut self, get: &dyn Fn(&str) -> Option<Tensor>, steps: u64) -> Result<()> {
+    fn save_state(&self) -> Result<super::AlgoState> {
+        let mut tensors = self.agent.params().tensors()?;
+        tensors.extend(self.critic.params().tensors()?);
+        tensors.extend(self.opt.slots());
+        let numbers = [
+            (super::OPTIMIZER_STEPS.to_string(), self.opt.steps() as u128),
+            (super::RNG_WORD_POS.to_string(), self.rng.get_word_pos()),
+        ];
+        Ok(super::AlgoState {
+            tensors,
+            numbers: numbers.into_iter().collect(),
+        })
+    }
+
+    fn restore_state(
+        &mut self,
+        get: &dyn Fn(&str) -> Option<Tensor>,
+        numbers: &std::collections::BTreeMap<String, u128>,
+    ) -> Result<()> {
         self.agent.params().load(get)?;
         self.critic.params().load(get)?;
-        self.opt.restore(get, steps)
-    }
-
-    fn rng_word_pos(&self) -> Option<u128> {
-        Some(self.rng.get_word_pos())
-    }
-
-    fn set_rng_word_pos(&mut self, pos: u128) {
-        self.rng.set_word_pos(pos);
+        let steps = super::saved_number(numbers, super::OPTIMIZER_STEPS)?;
+        self.opt.restore(get, steps as u64)?;
+        self.rng
+            .set_word_pos(super::saved_number(numbers, super::RNG_WORD_POS)?);
+        Ok(())
     }
 }

@@ -9,7 +9,10 @@ mod policy;
 pub use agent::{Agent, AgentOut, HeadConfig};
 pub use critic::Critic;
 pub use pcpn::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
-pub use policy::{sample_softmax as sample_softmax_pub, Action, Policy};
+pub use policy::{
+    sample_softmax as sample_softmax_pub, slack, Gaussian, Policy, ACTION_SIGMAS,
+    UNBOUNDED_LOG_STD, UNBOUNDED_MU,
+};
 
 use crate::rng::{glorot_uniform, SaverRng};
 use crate::{CoreError, Result};

@@ -1,24 +1,193 @@
-//! The agent's forward pass for acting, in plain Rust over the published weights
-//! (no autograd, no allocation per step): μ = MLP(obs), a = μ + σ·N(0, 1) for the
-//! continuous dims, the choice ~ softmax(logits) as a one-hot.
+//! The Gaussian MLP behaviour policy of A2C and SAVER (docs/ALGORITHM.md §3): its
+//! forward pass for acting, in plain Rust over the published weights (no autograd, no
+//! allocation per step): μ = MLP(obs), a = μ + σ·N(0, 1) for the continuous dims, the
+//! choice ~ softmax(logits) as a one-hot; and its family: the payload it records per
+//! step (μ then log σ) and the values the learner accepts.
 
 use super::{HeadConfig, TRUNK};
+use crate::acting::{ActingPolicy, PolicyFamily};
 use crate::env::EnvLayout;
 use crate::link::PolicyWeights;
 use crate::rng::{normal, SaverRng};
 use crate::{CoreError, Result};
 use rand::Rng;
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
-/// A sampled action with the distribution it came from.
-#[derive(Clone, Debug, Default)]
-pub struct Action {
-    /// [mu_dim].
-    pub mu: Vec<f32>,
-    /// [log_std_dim].
-    pub log_std: Vec<f32>,
-    /// [action_dim]: continuous samples, then a one-hot of the choice.
-    pub action: Vec<f32>,
+/// |μ| when the head leaves it unbounded (the paper's linear mean): far beyond any
+/// mean a learning policy reaches (actions are clipped to [-1, 1]), far below what
+/// overflows a squared error in f32.
+pub const UNBOUNDED_MU: f32 = 1e6;
+/// |log σ| when the head leaves it unbounded: σ from 2e-9 to 5e8.
+pub const UNBOUNDED_LOG_STD: f32 = 20.0;
+/// A sampled action lies within this many σ of its mean (a 16-σ draw has probability
+/// below 1e-57).
+pub const ACTION_SIGMAS: f32 = 16.0;
+
+/// Rounding slack of a bound `b`: values up to `b·(1 + 1e-5) + 1e-6` pass.
+pub fn slack(b: f32) -> f32 {
+    b.abs() * 1e-5 + 1e-6
+}
+
+/// The Gaussian MLP family in one env layout with one head.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gaussian {
+    /// The env layout.
+    pub layout: EnvLayout,
+    /// The bounds of μ and log σ.
+    pub head: HeadConfig,
+}
+
+impl Gaussian {
+    /// The family [`PolicyFamily::params`] describes (inf for no bound).
+    pub fn from_params(layout: EnvLayout, params: &BTreeMap<String, f64>) -> Result<Self> {
+        let get = |k: &str| {
+            params.get(k).copied().ok_or_else(|| {
+                CoreError::Config(format!("gaussian-mlp policy: parameter {k} is missing"))
+            })
+        };
+        let bounded = |v: f64| Some(v).filter(|v| v.is_finite());
+        let mu_bound = bounded(get("mu_bound")?);
+        let (lo, hi) = (get("log_std_min")?, get("log_std_max")?);
+        let log_std_bounds = match (bounded(lo), bounded(hi)) {
+            (None, None) => None,
+            (Some(lo), Some(hi)) if lo < hi => Some((lo, hi)),
+            _ => {
+                return Err(CoreError::Config(format!(
+                    "gaussian-mlp policy: log_std [{lo}, {hi}] is not an interval"
+                )))
+            }
+        };
+        if mu_bound.is_some_and(|b| b <= 0.0) {
+            return Err(CoreError::Config(format!(
+                "gaussian-mlp policy: mu_bound {mu_bound:?} must be > 0"
+            )));
+        }
+        Ok(Self {
+            layout,
+            head: HeadConfig {
+                mu_bound,
+                log_std_bounds,
+            },
+        })
+    }
+
+    /// Largest |μ| (continuous means and choice logits).
+    pub fn mu_abs(&self) -> f32 {
+        self.head.mu_bound.map_or(UNBOUNDED_MU, |b| b as f32)
+    }
+
+    /// log σ range.
+    pub fn log_std_range(&self) -> (f32, f32) {
+        self.head
+            .log_std_bounds
+            .map_or((-UNBOUNDED_LOG_STD, UNBOUNDED_LOG_STD), |(lo, hi)| {
+                (lo as f32, hi as f32)
+            })
+    }
+}
+
+impl PolicyFamily for Gaussian {
+    fn name(&self) -> &'static str {
+        "gaussian-mlp"
+    }
+
+    fn payload_width(&self) -> usize {
+        self.layout.mu_dim() + self.layout.log_std_dim()
+    }
+
+    fn payload_layout(&self) -> String {
+        format!(
+            "mu[{}] (continuous means, then choice logits), log_std[{}]",
+            self.layout.mu_dim(),
+            self.layout.log_std_dim()
+        )
+    }
+
+    fn params(&self) -> BTreeMap<String, f64> {
+        let (lo, hi) = self
+            .head
+            .log_std_bounds
+            .unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
+        BTreeMap::from([
+            (
+                "mu_bound".into(),
+                self.head.mu_bound.unwrap_or(f64::INFINITY),
+            ),
+            ("log_std_min".into(), lo),
+            ("log_std_max".into(), hi),
+        ])
+    }
+
+    fn check(&self, payload: &[f32], actions: &[f32], steps: usize) -> Result<()> {
+        let l = &self.layout;
+        let (m, c, a_dim, w) = (
+            l.mu_dim(),
+            l.continuous,
+            l.action_dim(),
+            self.payload_width(),
+        );
+        let out = |name: &str, i: usize, v: f32, what: String| {
+            Err(CoreError::Data(format!(
+                "rollout {name}[{i}] = {v} is outside {what}"
+            )))
+        };
+        let mu_abs = self.mu_abs();
+        let (lo, hi) = self.log_std_range();
+        for s in 0..steps {
+            let (mu, log_std) = payload[s * w..(s + 1) * w].split_at(m);
+            if let Some(j) = mu.iter().position(|v| v.abs() > mu_abs + slack(mu_abs)) {
+                return out("mu", s * m + j, mu[j], format!("the head's +-{mu_abs}"));
+            }
+            if let Some(j) = log_std
+                .iter()
+                .position(|&v| v < lo - slack(lo) || v > hi + slack(hi))
+            {
+                return out(
+                    "log_std",
+                    s * c + j,
+                    log_std[j],
+                    format!("the head's [{lo}, {hi}]"),
+                );
+            }
+            // Continuous actions within ACTION_SIGMAS σ of their mean; the choice a
+            // one-hot.
+            let a = &actions[s * a_dim..(s + 1) * a_dim];
+            for j in 0..c {
+                let sigma = log_std[j].exp();
+                let far = ACTION_SIGMAS * sigma + slack(mu[j]);
+                if (a[j] - mu[j]).abs() > far {
+                    return out(
+                        "actions",
+                        s * a_dim + j,
+                        a[j],
+                        format!(
+                            "{ACTION_SIGMAS} sigma of its mean {} (sigma {sigma})",
+                            mu[j]
+                        ),
+                    );
+                }
+            }
+            let choice = &a[c..];
+            if !choice.is_empty()
+                && (choice.iter().any(|&v| v != 0.0 && v != 1.0)
+                    || choice.iter().filter(|&&v| v == 1.0).count() != 1)
+            {
+                return Err(CoreError::Data(format!(
+                    "rollout actions of step {s}: the choice {choice:?} is not a one-hot"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    fn acting(&self, weights: Arc<PolicyWeights>) -> Result<Box<dyn ActingPolicy>> {
+        Ok(Box::new(Policy::new(weights, self.layout, self.head)?))
+    }
+
+    fn layout(&self) -> EnvLayout {
+        self.layout
+    }
 }
 
 /// Index of one dense layer's weight and bias in the shared weights.
@@ -30,7 +199,7 @@ struct Layer {
     fan_out: usize,
 }
 
-/// The acting policy: borrows one shared version of the weights.
+/// The Gaussian MLP acting policy: borrows one shared version of the weights.
 pub struct Policy {
     /// The weights (shared by every actor of the process).
     weights: Arc<PolicyWeights>,
@@ -90,11 +259,6 @@ impl Policy {
         })
     }
 
-    /// The version of the weights in use.
-    pub fn version(&self) -> u64 {
-        self.weights.version
-    }
-
     /// μ for one observation, written into `mu`.
     pub fn mean(&mut self, obs: &[f32], mu: &mut Vec<f32>) {
         let [a, b] = &mut self.buf;
@@ -124,30 +288,49 @@ impl Policy {
         mu.extend(a.iter().map(|&m| self.head.mu(m)));
     }
 
-    /// Samples an action for `obs` into `out`.
-    pub fn act(&mut self, obs: &[f32], rng: &mut SaverRng, out: &mut Action) {
-        let mut mu = std::mem::take(&mut out.mu);
-        self.mean(obs, &mut mu);
-        out.mu = mu;
-        let c = self.layout.continuous;
-        out.log_std.clear();
+    /// Samples an action for `obs` into `action`, with the μ and log σ it came from
+    /// into `payload` (μ then log σ).
+    pub fn sample(
+        &mut self,
+        obs: &[f32],
+        rng: &mut SaverRng,
+        action: &mut Vec<f32>,
+        payload: &mut Vec<f32>,
+    ) {
+        self.mean(obs, payload);
+        let (m, c) = (self.layout.mu_dim(), self.layout.continuous);
         let head = self.head;
-        out.log_std.extend(
+        payload.extend(
             self.weights.tensors[self.log_std]
                 .data
                 .iter()
                 .map(|&l| head.log_std(l)),
         );
-        out.action.clear();
+        let (mu, log_std) = payload.split_at(m);
+        action.clear();
         for j in 0..c {
-            out.action
-                .push(out.mu[j] + out.log_std[j].exp() * normal(rng));
+            action.push(mu[j] + log_std[j].exp() * normal(rng));
         }
         if self.layout.choices > 0 {
-            let choice = sample_softmax(&out.mu[c..], rng);
-            out.action
-                .extend((0..self.layout.choices).map(|i| if i == choice { 1.0 } else { 0.0 }));
+            let choice = sample_softmax(&mu[c..], rng);
+            action.extend((0..self.layout.choices).map(|i| if i == choice { 1.0 } else { 0.0 }));
         }
+    }
+}
+
+impl ActingPolicy for Policy {
+    fn version(&self) -> u64 {
+        self.weights.version
+    }
+
+    fn act(
+        &mut self,
+        obs: &[f32],
+        rng: &mut SaverRng,
+        action: &mut Vec<f32>,
+        payload: &mut Vec<f32>,
+    ) {
+        self.sample(obs, rng, action, payload);
     }
 }
 
