@@ -162,7 +162,7 @@ pub struct PretrainConfig {
 /// Held-out batches of the pretraining report (fresh samples, fixed τ stream).
 pub const PRETRAIN_EVAL_BATCHES: usize = 16;
 
-/// The paper's learning rate for an env and algorithm (SPEC.md).
+/// The paper's learning rate for an env and algorithm (docs/ALGORITHM.md §12).
 pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
     match (kind, algo) {
         (EnvKind::Angle, Algo::Saver) => 0.01,

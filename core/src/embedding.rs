@@ -3,7 +3,7 @@
 //! Computed with the Chebyshev recurrence cos(i·x) = 2·cos(x)·cos((i-1)·x) − cos((i-2)·x)
 //! in f64 (one `cos` per τ instead of n), then rounded to f32.
 
-/// Embedding width of the PCPN (SPEC.md: 128).
+/// Embedding width of the PCPN (docs/ALGORITHM.md §3: 128).
 pub const EMBED_DIM: usize = 128;
 
 /// Writes cos(π·i·τ) for i = 1..=out.len() into `out`.

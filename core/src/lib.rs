@@ -1,4 +1,4 @@
-//! saver-core: the algorithm of SPEC.md with no networking in it.
+//! saver-core: the algorithm of docs/ALGORITHM.md with no networking in it.
 //!
 //! Environments with state aligned vector rewards, the agent / A2C head / PCPN /
 //! vector critic networks, the quantile and monotonic losses, n-step returns, TF1

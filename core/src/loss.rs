@@ -35,7 +35,7 @@ pub fn quantile_loss(
 
 /// Monotonic penalty of quantile estimates `q` with their quantiles `tau`, both of
 /// shape [.., K]: returns [.., K, K] with entry (i, k) = Huber_1(relu(q_i − q_k)) where
-/// τ_i < τ_k and 0 elsewhere. SPEC.md reduces it as λ·2K·mean.
+/// τ_i < τ_k and 0 elsewhere. docs/ALGORITHM.md §5 reduces it as λ·2K·mean.
 pub fn monotonic_penalty(q: &Tensor, tau: &Tensor) -> candle_core::Result<Tensor> {
     let k = q.dim(D::Minus1)?;
     let mut shape = q.dims().to_vec();

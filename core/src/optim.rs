@@ -35,7 +35,7 @@ pub enum OptimizerConfig {
 }
 
 impl OptimizerConfig {
-    /// TF1 RMSProp defaults (SPEC.md).
+    /// TF1 RMSProp defaults (docs/ALGORITHM.md §10).
     pub const RMSPROP_TF1: Self = Self::Rmsprop {
         decay: 0.9,
         eps: 1e-10,

@@ -1,4 +1,4 @@
-//! PCPN pretraining (SPEC.md): i.i.d. samples — obs from the env's reset distribution,
+//! PCPN pretraining (docs/ALGORITHM.md §9): i.i.d. samples — obs from the env's reset distribution,
 //! μ ~ U(-1, 1), σ ~ U(0, 1) (log σ = log(U + 1e-10)), one step with a = μ + σ·N(0, 1),
 //! target Δp — and the loss mean_{B·K·d} ρ_τ(Δp − PCPN(x, τ)), fresh batches of 128.
 //!

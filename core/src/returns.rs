@@ -1,4 +1,4 @@
-//! n-step returns inside a rollout (GAE with λ = 1), per component:
+//! n-step returns inside a rollout (GAE with λ = 1; docs/ALGORITHM.md §6), per component:
 //! R_n = bootstrap, R_t = r_t + γ·(1 − done_t)·R_{t+1}, or, where the episode ended at
 //! t by its step limit and the run bootstraps there, R_t = r_t + γ·V(o_final).
 

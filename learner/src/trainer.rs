@@ -1,4 +1,4 @@
-//! The trainer thread: forms sync rounds (one rollout per registered actor at the
+//! The trainer thread (docs/ALGORITHM.md §11): forms sync rounds (one rollout per registered actor at the
 //! current version, batched in actor-id order), updates, publishes, logs, checkpoints.
 //! It blocks on std primitives and never runs on an async runtime.
 

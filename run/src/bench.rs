@@ -10,7 +10,7 @@ use crate::train::train_with;
 use anyhow::Result;
 use candle_core::{Device, Tensor};
 use clap::Args;
-use saver_core::algo::{build, pcpn_threads, set_pcpn_threads, Algorithm};
+use saver_core::algo::{build, threads_for, Algorithm};
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvLayout, EnvSpec};
 use saver_core::nets::{ParamSet, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
@@ -132,7 +132,7 @@ pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
 
 /// Seconds per update of `algo` on angle d (a synthetic batch, a random PCPN), with
 /// the update's FLOPs and transitions.
-fn time_update(algo: Algo, d: usize, seconds: f64) -> Result<(f64, f64, usize)> {
+fn time_update(algo: Algo, d: usize, seconds: f64, threads: usize) -> Result<(f64, f64, usize)> {
     let dev = Device::Cpu;
     let spec = EnvSpec::new(EnvKind::Angle, d)?;
     let config = RunConfig::recommended(spec, algo, 1);
@@ -140,6 +140,7 @@ fn time_update(algo: Algo, d: usize, seconds: f64) -> Result<(f64, f64, usize)> 
         .then(|| random_pcpn(&spec, &dev))
         .transpose()?;
     let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
+    a.set_threads(threads);
     let batch = synthetic_batch(&spec.layout(), d as u64);
     let s = time(seconds, || {
         a.update(&batch)?;
@@ -176,11 +177,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "GFLOP/s",
         "of peak"
     );
-    set_pcpn_threads(1);
     let mut single = Vec::new();
     for algo in [Algo::A2c, Algo::Saver] {
         for &d in &args.dims {
-            let (s, flops, n) = time_update(algo, d, args.seconds)?;
+            let (s, flops, n) = time_update(algo, d, args.seconds, 1)?;
             if algo == Algo::Saver {
                 single.push(s);
             }
@@ -195,8 +195,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             );
         }
     }
-    set_pcpn_threads(args.threads.unwrap_or(0));
-    let threads = pcpn_threads();
+    let threads = threads_for(args.threads.unwrap_or(crate::pcpn_threads()));
     if threads > 1 {
         crate::out!(
             "\nSAVER with its PCPN blocks on {threads} threads (the default: one per core):"
@@ -210,7 +209,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             "vs 1 thread"
         );
         for (&d, one) in args.dims.iter().zip(single) {
-            let (s, _, n) = time_update(Algo::Saver, d, args.seconds)?;
+            let (s, _, n) = time_update(Algo::Saver, d, args.seconds, threads)?;
             crate::out!(
                 "{:<6} {d:>3} {:>12.2} {:>14.0} {:>13.2}x",
                 "saver",

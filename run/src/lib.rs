@@ -15,6 +15,22 @@ pub mod progress;
 pub mod services;
 pub mod train;
 
+/// The threads of SAVER's fused PCPN blocks for this process's learners: one per core
+/// (0) unless SAVER_PCPN_THREADS says otherwise; handed to each algorithm
+/// ([`saver_core::algo::Algorithm::set_threads`]). Read once.
+pub fn pcpn_threads() -> usize {
+    static N: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *N.get_or_init(|| match std::env::var("SAVER_PCPN_THREADS") {
+        Err(_) => 0,
+        Ok(v) => v.parse().unwrap_or_else(|_| {
+            eprintln!(
+                "warning: SAVER_PCPN_THREADS={v:?} is not a thread count; using one per core"
+            );
+            0
+        }),
+    })
+}
+
 /// Process-wide set-up, before any thread exists.
 ///
 /// - glibc malloc keeps freed memory: candle allocates a fresh buffer for every tensor
@@ -27,17 +43,9 @@ pub mod train;
 ///   pinned here. The default is 1 thread: on the 2-core reference machine the A2C
 ///   angle-d2 run does 47k steps/s with 1 thread against 38k with 2 (the actors need
 ///   the other core).
-/// - SAVER's fused PCPN blocks have their own thread count, one per core unless
-///   SAVER_PCPN_THREADS says otherwise (see `saver_core::algo::set_pcpn_threads`).
+/// - SAVER's fused PCPN blocks have their own thread count ([`pcpn_threads`]).
 pub fn init_process(threads: Option<usize>) {
-    if let Ok(v) = std::env::var("SAVER_PCPN_THREADS") {
-        match v.parse() {
-            Ok(n) => saver_core::algo::set_pcpn_threads(n),
-            Err(_) => eprintln!(
-                "warning: SAVER_PCPN_THREADS={v:?} is not a thread count; using one per core"
-            ),
-        }
-    }
+    let _ = pcpn_threads();
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets allocator parameters; it is called before other threads.
     unsafe {

@@ -108,6 +108,7 @@ pub fn start_learner(
     let config = &with_pcpn_recorded(config, pcpn.as_ref())?;
     let dev = saver_core::device();
     let mut algo = saver_core::algo::build(config, pcpn, &dev)?;
+    algo.set_threads(crate::pcpn_threads());
     let resumed = saver_learner::resume(out, config, algo.as_mut())
         .with_context(|| format!("resuming from {}", out.display()))?;
     std::fs::create_dir_all(out)

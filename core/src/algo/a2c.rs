@@ -1,4 +1,4 @@
-//! A2C: loss = mean(−log π(a|o)·A) + c_v·mean((V − R)²), A = R − V (no gradient),
+//! A2C (docs/ALGORITHM.md §8): loss = mean(−log π(a|o)·A) + c_v·mean((V − R)²), A = R − V (no gradient),
 //! scalar reward = sum of the vector reward, shared trunk, entropy β = 0.
 
 use super::{
@@ -6,13 +6,13 @@ use super::{
 };
 use crate::config::RunConfig;
 use crate::env::EnvLayout;
-use crate::nets::Agent;
+use crate::nets::{gaussian_log_prob, Agent};
 use crate::optim::Optimizer;
 use crate::returns::n_step_returns;
 use crate::rng::{rng_for, streams};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
-use candle_core::{Device, Tensor, D};
+use candle_core::{Device, Tensor};
 use saver_proto::NamedTensor;
 
 const STATS: &[&str] = &[
@@ -72,24 +72,6 @@ impl A2c {
             dev: dev.clone(),
         })
     }
-
-    /// log π(a|o) per row: Gaussian over the continuous dims plus the categorical term.
-    fn log_prob(&self, mu: &Tensor, log_std: &Tensor, actions: &Tensor) -> Result<Tensor> {
-        let c = self.layout.continuous;
-        let half_log_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
-        let mu_c = mu.narrow(1, 0, c)?;
-        let a_c = actions.narrow(1, 0, c)?;
-        let z = ((a_c - mu_c)? / log_std.exp()?)?;
-        let gauss = ((z.sqr()? * -0.5)? - log_std)?;
-        let mut logp = (gauss - half_log_2pi)?.sum(1)?;
-        if self.layout.choices > 0 {
-            let logits = mu.narrow(1, c, self.layout.choices)?;
-            let onehot = actions.narrow(1, c, self.layout.choices)?;
-            let log_soft = candle_nn::ops::log_softmax(&logits, D::Minus1)?;
-            logp = (logp + (log_soft * onehot)?.sum(1)?)?;
-        }
-        Ok(logp)
-    }
 }
 
 impl Algorithm for A2c {
@@ -119,7 +101,7 @@ impl Algorithm for A2c {
         let mu = out.mu.narrow(0, 0, b)?;
         let log_std = out.log_std.narrow(0, 0, b)?;
         let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
-        let logp = self.log_prob(&mu, &log_std, &actions)?;
+        let logp = gaussian_log_prob(&self.layout, &mu, &log_std, &actions)?;
         let policy_loss = (logp * advantage)?.mean_all()?.neg()?;
         let value_loss = ((value - returns)?.sqr()?.mean_all()? * self.value_coef)?;
         let loss = (&policy_loss + &value_loss)?;

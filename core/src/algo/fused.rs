@@ -1,4 +1,4 @@
-//! The τ-dependent half of the frozen PCPN, forward and input-gradient, fused per
+//! The τ-dependent half of the frozen PCPN (docs/ALGORITHM.md §7), forward and input-gradient, fused per
 //! block of transitions so that nothing of size B·K·d·128 is ever materialised.
 //!
 //! For one state dimension j and a block of `BLOCK` transitions (R = BLOCK·K rows):
@@ -17,30 +17,21 @@
 //! Every buffer of a block (about 0.5 MB at BLOCK = 8) stays in the core's L2 cache,
 //! where the unfused path wrote and re-read ~28 MB per update at d = 4 (measured: 11 %
 //! of the update in memset alone). Blocks are independent, so they are split across
-//! [`pcpn_threads`] threads in contiguous runs; the loss sums are added in block order,
+//! threads in contiguous runs (an option of the SAVER update, [`threads_for`]); the loss sums are added in block order,
 //! so the result does not depend on the thread count.
 
 use crate::config::SaverConfig;
 use crate::embedding::{cosine_embedding_lanes, EMBED_DIM};
 use crate::loss::{pair_penalty, quantile_rho};
 use crate::nets::PCPN_HEAD_HIDDEN;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// Threads for the blocks; 0 = one per core.
-static PCPN_THREADS: AtomicUsize = AtomicUsize::new(0);
-
-/// Sets the threads SAVER's PCPN blocks run on (0 = one per core, the default).
+/// Threads for `threads` = 0: one per core.
 ///
-/// Separate from candle's own thread count: on the 2-core reference machine the blocks
-/// run 1.3-1.6x faster on two threads (d = 4 to 16), while candle's small agent and
-/// critic matmuls are slower on two (`saver bench`).
-pub fn set_pcpn_threads(n: usize) {
-    PCPN_THREADS.store(n, Ordering::Relaxed);
-}
-
-/// The threads SAVER's PCPN blocks run on.
-pub fn pcpn_threads() -> usize {
-    match PCPN_THREADS.load(Ordering::Relaxed) {
+/// On the 2-core reference machine the blocks run 1.3-1.6x faster on two threads (d = 4
+/// to 16), while candle's small agent and critic matmuls are slower on two (`saver
+/// bench`), so this is apart from candle's own thread count.
+pub fn threads_for(threads: usize) -> usize {
+    match threads {
         0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
         n => n,
     }
@@ -108,8 +99,9 @@ struct Scratch {
     order: Vec<usize>,
 }
 
-/// Runs every (dimension, block) unit; see the module docs.
-pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig) -> Fused {
+/// Runs every (dimension, block) unit on `threads` threads (0: one per core); see the
+/// module docs.
+pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig, threads: usize) -> Fused {
     let units: Vec<(usize, usize)> = (0..x.d)
         .flat_map(|j| (0..x.b).step_by(BLOCK).map(move |b0| (j, b0)))
         .collect();
@@ -121,7 +113,7 @@ pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig) -> Fused {
         qn: 1.0 / (b * k * d),
         mn: cfg.lambda_mon * 2.0 * k / (b * k * k * d),
     };
-    let threads = pcpn_threads().clamp(1, units.len().max(1));
+    let threads = threads_for(threads).clamp(1, units.len().max(1));
     let run_of = |part: &[(usize, usize)]| {
         let mut s = Scratch::default();
         part.iter()

@@ -7,9 +7,9 @@ mod saver;
 mod saver_grad;
 
 pub use a2c::A2c;
-pub use fused::{pcpn_threads, set_pcpn_threads};
-pub use saver::{saver_actor_losses, tau_tensors, GradPath, Saver, SaverLosses};
-pub use saver_grad::{policy_grads, InputGrad, PcpnGrad};
+pub use fused::threads_for;
+pub use saver::{tau_tensors, GradPath, Saver};
+pub use saver_grad::{policy_grads, saver_actor_losses, InputGrad, PcpnGrad, SaverLosses};
 
 use crate::acting::PolicyFamily;
 use crate::config::{Algo, RunConfig};
@@ -51,6 +51,10 @@ pub trait Algorithm: Send {
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>>;
     /// Optimiser steps taken.
     fn optimizer_steps(&self) -> u64;
+    /// Threads the update may use beyond candle's own (0: one per core); an
+    /// execution option that never changes the results. Ignored by single-threaded
+    /// updates.
+    fn set_threads(&mut self, _n: usize) {}
     /// Everything a checkpoint needs to go on exactly: every trainable tensor, the
     /// optimiser slots, and numbers such as the step count and random-stream position.
     fn save_state(&self) -> Result<AlgoState>;

@@ -1,18 +1,17 @@
-//! SAVER (paper Section 4): the agent is trained through the frozen PCPN with the QRRL
+//! SAVER (paper Section 4; docs/ALGORITHM.md §7): the agent is trained through the frozen PCPN with the QRRL
 //! loss on vector advantages; a separate vector critic learns V(o, μ, log σ) ∈ R^d.
 //!
 //! L_a   = mean_{B·K·d} ρ_τ(Δp − PCPN(x, τ)) · Â_j        (agent only, via μ, log σ)
 //! L_mon = λ_mon · 2K · mean_{B·K·K·d} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
-use super::saver_grad::{policy_grads, PcpnGrad};
+use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
 use super::{
     check_finite, matrix, policy_diagnostics, timeout_ends, update_rows, Algorithm, UpdateStats,
 };
 use crate::config::{RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
-use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::{n_step_returns, normalize_advantages};
@@ -68,14 +67,6 @@ pub enum GradPath {
     Reference,
 }
 
-/// The two agent-side loss terms of one batch (scalars).
-pub struct SaverLosses {
-    /// L_a.
-    pub actor: Tensor,
-    /// L_mon (weighted).
-    pub mon: Tensor,
-}
-
 /// τ [d, B, K] and its cosine embedding [d, B, K, 128] as tensors.
 pub fn tau_tensors(
     taus: &[f32],
@@ -89,34 +80,6 @@ pub fn tau_tensors(
         Tensor::from_slice(taus, (d, b, k), dev)?,
         Tensor::from_vec(cos, (d, b, k, EMBED_DIM), dev)?,
     ))
-}
-
-/// SAVER's agent-side losses for given policy outputs.
-///
-/// `obs` [B, O], `mu` [B, M], `log_std` [B, L] (gradients flow from here), `state_delta`
-/// and `advantage` [B, d] (constants), `tau` [d, B, K] with its embedding `cos`.
-#[allow(clippy::too_many_arguments)]
-pub fn saver_actor_losses(
-    pcpn: &Pcpn,
-    obs: &Tensor,
-    mu: &Tensor,
-    log_std: &Tensor,
-    state_delta: &Tensor,
-    advantage: &Tensor,
-    tau: &Tensor,
-    cos: &Tensor,
-    cfg: &SaverConfig,
-) -> Result<SaverLosses> {
-    let k = tau.dim(2)?;
-    let x = Tensor::cat(&[obs, mu, log_std], 1)?; // [B, I]
-    let q = pcpn.forward(&x, cos)?; // [d, B, K]
-    let target = state_delta.t()?.unsqueeze(2)?; // [d, B, 1]
-    let adv = advantage.t()?.unsqueeze(2)?; // [d, B, 1]
-    let delta = target.broadcast_sub(&q)?;
-    let rho = quantile_loss(&delta, tau, cfg.kappa)?;
-    let actor = rho.broadcast_mul(&adv)?.mean_all()?;
-    let mon = (monotonic_penalty(&q, tau)?.mean_all()? * (cfg.lambda_mon * 2.0 * k as f64))?;
-    Ok(SaverLosses { actor, mon })
 }
 
 /// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim]: a wall
@@ -283,6 +246,10 @@ impl Algorithm for Saver {
 
     fn optimizer_steps(&self) -> u64 {
         self.opt.steps()
+    }
+
+    fn set_threads(&mut self, n: usize) {
+        self.pcpn.set_threads(n);
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {

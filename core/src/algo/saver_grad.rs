@@ -8,11 +8,13 @@
 //! backward  dh = (dz ⊙ 1[z>0])·W1ᵀ ⊙ 1[h>0], dx = dh·W0ᵀ                  (candle)
 //!
 //! The agent then gets its gradient from the surrogate Σ μ·dμ + Σ log σ·d(log σ), so
-//! candle's autograd handles the agent. `saver_actor_losses` is the reference that a
-//! test holds this path to.
+//! candle's autograd handles the agent. [`saver_actor_losses`], at the end of this
+//! file, is the reference through candle autograd that a test holds this path to (and
+//! the path on devices other than the CPU).
 
 use super::fused::{self, Heads};
 use crate::config::SaverConfig;
+use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::Pcpn;
 use crate::Result;
 use candle_core::{Tensor, D};
@@ -28,6 +30,8 @@ pub struct PcpnGrad {
     w1t: Tensor,
     /// The per-dimension heads, row-major on the host.
     heads: Heads,
+    /// Threads of the fused blocks (0: one per core).
+    threads: usize,
 }
 
 /// Losses and the input gradient of one batch.
@@ -57,7 +61,14 @@ impl PcpnGrad {
                 b3: host(&pcpn.b3)?,
             },
             pcpn,
+            threads: 0,
         })
+    }
+
+    /// Runs the fused blocks on `n` threads (0: one per core, the default); the
+    /// results are the same bits on any number.
+    pub fn set_threads(&mut self, n: usize) {
+        self.threads = n;
     }
 
     /// The frozen PCPN.
@@ -90,7 +101,7 @@ impl PcpnGrad {
             k: taus.len() / (b * d),
             d,
         };
-        let out = fused::run(&self.heads, &batch, cfg);
+        let out = fused::run(&self.heads, &batch, cfg, self.threads);
         let dz = Tensor::from_vec(out.dz, z.shape(), z.device())?;
         let dz = dz.mul(&z.gt(0.0)?.to_dtype(z.dtype())?)?;
         let dh = dz
@@ -112,4 +123,42 @@ pub fn policy_grads(dx: &Tensor, obs_dim: usize, mu_dim: usize) -> Result<(Tenso
         dx.narrow(1, obs_dim, mu_dim)?,
         dx.narrow(1, obs_dim + mu_dim, i - obs_dim - mu_dim)?,
     ))
+}
+
+// ---- The reference: the same losses through candle autograd.
+
+/// The two agent-side loss terms of one batch (scalars).
+pub struct SaverLosses {
+    /// L_a.
+    pub actor: Tensor,
+    /// L_mon (weighted).
+    pub mon: Tensor,
+}
+
+/// SAVER's agent-side losses for given policy outputs.
+///
+/// `obs` [B, O], `mu` [B, M], `log_std` [B, L] (gradients flow from here), `state_delta`
+/// and `advantage` [B, d] (constants), `tau` [d, B, K] with its embedding `cos`.
+#[allow(clippy::too_many_arguments)]
+pub fn saver_actor_losses(
+    pcpn: &Pcpn,
+    obs: &Tensor,
+    mu: &Tensor,
+    log_std: &Tensor,
+    state_delta: &Tensor,
+    advantage: &Tensor,
+    tau: &Tensor,
+    cos: &Tensor,
+    cfg: &SaverConfig,
+) -> Result<SaverLosses> {
+    let k = tau.dim(2)?;
+    let x = Tensor::cat(&[obs, mu, log_std], 1)?; // [B, I]
+    let q = pcpn.forward(&x, cos)?; // [d, B, K]
+    let target = state_delta.t()?.unsqueeze(2)?; // [d, B, 1]
+    let adv = advantage.t()?.unsqueeze(2)?; // [d, B, 1]
+    let delta = target.broadcast_sub(&q)?;
+    let rho = quantile_loss(&delta, tau, cfg.kappa)?;
+    let actor = rho.broadcast_mul(&adv)?.mean_all()?;
+    let mon = (monotonic_penalty(&q, tau)?.mean_all()? * (cfg.lambda_mon * 2.0 * k as f64))?;
+    Ok(SaverLosses { actor, mon })
 }

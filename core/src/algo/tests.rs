@@ -385,7 +385,7 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
         ]
         .concat();
 
-        let fast = PcpnGrad::new(pcpn).unwrap();
+        let mut fast = PcpnGrad::new(pcpn).unwrap();
         let x = Tensor::cat(
             &[
                 t(&obs, l.obs_dim),
@@ -395,7 +395,15 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
             1,
         )
         .unwrap();
+        fast.set_threads(1);
         let g = fast.input_grad(&x, &delta, &adv, &taus, &cfg).unwrap();
+        fast.set_threads(3);
+        let g3 = fast.input_grad(&x, &delta, &adv, &taus, &cfg).unwrap();
+        assert_eq!(flat(&g3.dx), flat(&g.dx), "{spec}: 3 threads differ from 1");
+        assert_eq!(
+            (g3.actor_loss.to_bits(), g3.mon_loss.to_bits()),
+            (g.actor_loss.to_bits(), g.mon_loss.to_bits())
+        );
         let (dmu, dls) = policy_grads(&g.dx, l.obs_dim, l.mu_dim()).unwrap();
         let got: Vec<f32> = [flat(&dmu), flat(&dls)].concat();
 

@@ -1,4 +1,4 @@
-//! Environments with state aligned vector rewards (SPEC.md, "Environments").
+//! Environments with state aligned vector rewards (docs/ALGORITHM.md §2).
 //!
 //! An environment is described on the wire as data ([`EnvLayout`]: observation size,
 //! continuous action dims, an optional categorical choice, which observation entries are

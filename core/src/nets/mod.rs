@@ -1,4 +1,4 @@
-//! Networks of SPEC.md, "Networks": ReLU MLPs with Glorot-uniform weights and zero
+//! The networks (docs/ALGORITHM.md §3): ReLU MLPs with Glorot-uniform weights and zero
 //! biases drawn from our seeded RNG. Weights are stored [in, out] so a layer is x·W + b.
 
 mod agent;
@@ -10,15 +10,15 @@ pub use agent::{Agent, AgentOut, HeadConfig};
 pub use critic::Critic;
 pub use pcpn::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
 pub use policy::{
-    sample_softmax as sample_softmax_pub, slack, Gaussian, Policy, ACTION_SIGMAS,
-    UNBOUNDED_LOG_STD, UNBOUNDED_MU,
+    gaussian_log_prob, sample_softmax as sample_softmax_pub, slack, Gaussian, Policy,
+    ACTION_SIGMAS, UNBOUNDED_LOG_STD, UNBOUNDED_MU,
 };
 
 use crate::rng::{glorot_uniform, SaverRng};
 use crate::{CoreError, Result};
 use candle_core::{Device, Tensor, Var};
 
-/// Hidden sizes of the agent trunk and of the critic (SPEC.md).
+/// Hidden sizes of the agent trunk and of the critic (docs/ALGORITHM.md §3).
 pub const TRUNK: [usize; 3] = [256, 128, 64];
 
 /// A dense layer y = x·W + b over plain tensors (frozen) or variables (trainable).
