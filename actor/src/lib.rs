@@ -70,22 +70,17 @@ pub type EnvMaker<'a> = &'a dyn Fn(&ActorSettings) -> Result<Box<dyn Env>, saver
 
 /// The built-in preset the run names.
 pub fn preset_env(s: &ActorSettings) -> Result<Box<dyn Env>, saver_core::CoreError> {
-    Ok(s.env.make(s.max_episode_steps))
+    s.env.make(s.max_episode_steps)
 }
 
 impl Actor {
     /// An actor for an assignment, with `n_envs` fresh preset envs reset from its own
-    /// stream.
-    pub fn new(assignment: &Assignment, n_envs: usize) -> Self {
+    /// stream (refused for a custom env, whose actors bring it: [`Actor::with_envs`]).
+    pub fn new(assignment: &Assignment, n_envs: usize) -> Result<Self, saver_core::CoreError> {
         let envs = (0..n_envs)
-            .map(|_| {
-                assignment
-                    .settings
-                    .env
-                    .make(assignment.settings.max_episode_steps)
-            })
-            .collect();
-        Self::with_envs(assignment, envs).expect("preset envs have the run's layout")
+            .map(|_| preset_env(&assignment.settings))
+            .collect::<Result<_, _>>()?;
+        Self::with_envs(assignment, envs)
     }
 
     /// An actor for an assignment over the given envs (refused when one's layout is

@@ -174,6 +174,12 @@ pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
     }
 }
 
+/// The preset whose paper settings an env takes: its own, or angle's for a custom env
+/// (the paper has none for it).
+pub fn preset_or_angle(env: &EnvSpec) -> EnvKind {
+    env.kind().unwrap_or(EnvKind::Angle)
+}
+
 /// The paper's number of pretraining batches for an env.
 pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
     match kind {
@@ -311,9 +317,9 @@ pub const DEFAULT_MAX_LAG: u64 = 4;
 
 impl RunConfig {
     /// The paper's settings for an env and algorithm, for `steps` steps.
-    pub fn paper(env: EnvSpec, algo: Algo, steps: u64) -> Self {
+    pub fn paper(env: &EnvSpec, algo: Algo, steps: u64) -> Self {
         Self {
-            env,
+            env: env.clone(),
             algo,
             steps,
             seed: 0,
@@ -323,7 +329,7 @@ impl RunConfig {
             envs_per_actor: 1,
             rollout: 8,
             gamma: 0.99,
-            lr: paper_lr(env.kind, algo),
+            lr: paper_lr(preset_or_angle(env), algo),
             optimizer: OptimizerKind::Rmsprop,
             lr_decay: false,
             grad_clip: None,
@@ -340,7 +346,7 @@ impl RunConfig {
                 adv_norm_joint: false,
                 mu_raw_penalty: 0.0,
             },
-            pretrain: PretrainConfig::paper(env.kind),
+            pretrain: PretrainConfig::paper(preset_or_angle(env)),
             pcpn_sha256: None,
         }
     }
@@ -352,9 +358,9 @@ impl RunConfig {
     /// divided by one standard deviation over all dimensions, and a PCPN pretrained
     /// 5,000 batches (its held-out loss settles by ~1,000). A2C keeps the paper's
     /// settings.
-    pub fn recommended(env: EnvSpec, algo: Algo, steps: u64) -> Self {
+    pub fn recommended(env: &EnvSpec, algo: Algo, steps: u64) -> Self {
         let mut c = Self::paper(env, algo, steps);
-        c.pretrain = PretrainConfig::recommended(env.kind);
+        c.pretrain = PretrainConfig::recommended(preset_or_angle(env));
         if algo == Algo::Saver {
             c.optimizer = OptimizerKind::Adam;
             c.lr = RECOMMENDED_SAVER_LR;
@@ -368,7 +374,6 @@ impl RunConfig {
     /// Checks every field; the message names the field.
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &str, why: String| Err(CoreError::Config(format!("{field}: {why}")));
-        EnvSpec::new(self.env.kind, self.env.dim)?;
         if self.steps == 0 {
             return bad("steps", "must be >= 1".into());
         }
@@ -542,7 +547,7 @@ mod tests {
     #[test]
     fn paper_defaults_validate_and_bad_fields_are_named() {
         let env = EnvSpec::new(EnvKind::Angle, 4).unwrap();
-        let ok = RunConfig::paper(env, Algo::Saver, 1000);
+        let ok = RunConfig::paper(&env, Algo::Saver, 1000);
         ok.validate().unwrap();
         assert_eq!(ok.lr, 0.01);
         assert_eq!(ok.pretrain.lr, 0.001);
@@ -556,17 +561,18 @@ mod tests {
         let mut c = ok.clone();
         c.max_lag = Some(2);
         assert!(c.validate().unwrap_err().to_string().contains("max_lag"));
-        let mut c = ok;
-        c.env.dim = 3;
-        assert!(c.validate().unwrap_err().to_string().contains("even"));
+        assert!(EnvSpec::new(EnvKind::Angle, 3)
+            .unwrap_err()
+            .to_string()
+            .contains("even"));
     }
 
     /// Every field survives TOML and JSON, the unbounded ones (inf, κ = 0) included.
     #[test]
     fn toml_and_json_forms_read_back_equal() {
         let env = EnvSpec::new(EnvKind::Select, 5).unwrap();
-        let faithful = RunConfig::paper(env, Algo::Saver, 1000);
-        let mut bounded = RunConfig::recommended(env, Algo::Saver, 1000);
+        let faithful = RunConfig::paper(&env, Algo::Saver, 1000);
+        let mut bounded = RunConfig::recommended(&env, Algo::Saver, 1000);
         bounded.saver.kappa = Some(0.01);
         bounded.grad_clip = Some(0.5);
         bounded.mode = Mode::Async;

@@ -117,7 +117,8 @@ mod tests {
 
     #[test]
     fn values_outside_the_env_or_the_head_are_refused_with_their_place() {
-        let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::Saver, 0);
+        let mut config =
+            RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::Saver, 0);
         config.head = crate::nets::HeadConfig::IN_PCPN_DOMAIN;
         let limits = limits_of(&config);
         let good = one_step();
@@ -153,7 +154,7 @@ mod tests {
 
     #[test]
     fn the_paper_head_allows_wide_but_not_absurd_means_and_the_choice_is_a_one_hot() {
-        let config = RunConfig::paper(EnvSpec::new(EnvKind::Select, 3).unwrap(), Algo::A2c, 0);
+        let config = RunConfig::paper(&EnvSpec::new(EnvKind::Select, 3).unwrap(), Algo::A2c, 0);
         let limits = limits_of(&config);
         assert_eq!(
             Gaussian {

@@ -62,7 +62,7 @@ impl ActorSettings {
             rollout: config.rollout,
             seed: config.seed,
             max_episode_steps: config.max_episode_steps,
-            env: config.env,
+            env: config.env.clone(),
             policy: crate::algo::policy_family(config),
         }
     }

@@ -45,13 +45,13 @@ pub struct EnvSampler {
 }
 
 impl EnvSampler {
-    /// A sampler for `spec` with its own stream of `seed`.
-    pub fn new(spec: EnvSpec, seed: u64, stream: u64) -> Self {
-        Self {
-            env: spec.make(u32::MAX),
+    /// A sampler for the preset `spec` with its own stream of `seed`.
+    pub fn new(spec: &EnvSpec, seed: u64, stream: u64) -> Result<Self> {
+        Ok(Self {
+            env: spec.make(u32::MAX)?,
             rng: rng_for(seed, stream),
             layout: spec.layout(),
-        }
+        })
     }
 }
 
@@ -204,23 +204,23 @@ mod tests {
         let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
         let dev = Device::Cpu;
         let k = 32;
-        let source = Box::new(EnvSampler::new(spec, 0, streams::PRETRAIN));
+        let source = Box::new(EnvSampler::new(&spec, 0, streams::PRETRAIN).unwrap());
         let p = PretrainConfig {
             lr: 1e-3,
             batches: 400,
             ..PretrainConfig::paper(EnvKind::Angle)
         };
         let mut t = Pretrainer::new(source, &p, &dev).unwrap();
-        let mut held_out = EnvSampler::new(spec, 0, 77);
+        let mut held_out = EnvSampler::new(&spec, 0, 77).unwrap();
         let untrained = t.evaluate(&mut held_out, 4, 1).unwrap();
         for _ in 0..p.batches {
             t.step().unwrap();
         }
-        let mut held_out = EnvSampler::new(spec, 0, 77);
+        let mut held_out = EnvSampler::new(&spec, 0, 77).unwrap();
         let trained = t.evaluate(&mut held_out, 4, 1).unwrap();
 
         // Marginal quantiles per dim from a separate large sample.
-        let big = EnvSampler::new(spec, 0, 78).sample(20_000);
+        let big = EnvSampler::new(&spec, 0, 78).unwrap().sample(20_000);
         let d = 2;
         let mut cols: Vec<Vec<f32>> = (0..d)
             .map(|j| big.delta.iter().skip(j).step_by(d).copied().collect())
@@ -230,7 +230,7 @@ mod tests {
         }
         let quantile = |j: usize, tau: f32| cols[j][((tau * 19_999.0) as usize).min(19_999)];
         // Its loss on the same held-out batches with the same τ stream as `evaluate`.
-        let mut held_out = EnvSampler::new(spec, 0, 77);
+        let mut held_out = EnvSampler::new(&spec, 0, 77).unwrap();
         let mut rng = rng_for(1, streams::HELD_OUT);
         let mut total = 0.0f64;
         let mut count = 0usize;

@@ -9,7 +9,7 @@
 use crate::config::{
     Algo, Mode, OptimizerKind, PretrainConfig, RunConfig, SampleDistribution, DEFAULT_MAX_LAG,
 };
-use crate::env::{EnvKind, EnvSpec};
+use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
 use crate::{CoreError, Result};
 use clap::Args;
 use serde::{Deserialize, Serialize};
@@ -36,6 +36,51 @@ pub struct EnvSettings {
     /// State dimension d (angle: even; select: any; arm: 2) [default: 4; arm 2]
     #[arg(long)]
     pub dim: Option<usize>,
+    /// A custom env's name (config files only; with `layout` and `bounds`).
+    #[arg(skip)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// A custom env's layout.
+    #[arg(skip)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub layout: Option<EnvLayout>,
+    /// A custom env's bounds.
+    #[arg(skip)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bounds: Option<EnvBounds>,
+}
+
+impl EnvSettings {
+    /// The env these settings name: a custom env when they give its name, else a
+    /// preset (angle, d = 4 by default).
+    pub fn spec(&self) -> Result<EnvSpec> {
+        if let Some(name) = &self.name {
+            if self.kind.is_some() {
+                return Err(config_err(format!(
+                    "env: {name:?} is a custom env; it takes no preset kind"
+                )));
+            }
+            let (Some(layout), Some(bounds)) = (self.layout, self.bounds.clone()) else {
+                return Err(config_err(format!(
+                    "env {name:?}: a custom env needs its layout and bounds"
+                )));
+            };
+            let spec = EnvSpec::custom(name, layout, bounds)?;
+            if self.dim.is_some_and(|d| d != spec.dim()) {
+                return Err(config_err(format!(
+                    "env {name:?}: dim is its layout's aligned_dim, {}",
+                    spec.dim()
+                )));
+            }
+            return Ok(spec);
+        }
+        let kind = self.kind.unwrap_or(DEFAULT_ENV);
+        let dim = self.dim.unwrap_or(match kind {
+            EnvKind::Arm => 2,
+            _ => DEFAULT_DIM,
+        });
+        EnvSpec::new(kind, dim)
+    }
 }
 
 /// PCPN pretraining: `[pretrain]` in a file.
@@ -214,21 +259,18 @@ impl RunSettings {
         let merged: RunSettings = toml::Value::Table(top.clone())
             .try_into()
             .map_err(config_err)?;
-        let kind = merged.env.kind.unwrap_or(DEFAULT_ENV);
-        let dim = merged.env.dim.unwrap_or(match kind {
-            EnvKind::Arm => 2,
-            _ => DEFAULT_DIM,
-        });
-        let env = EnvSpec::new(kind, dim)?;
+        let env = merged.env.spec()?;
         let algo = merged.algo.unwrap_or(DEFAULT_ALGO);
         let steps = merged.steps.unwrap_or(DEFAULT_STEPS);
         let base = if self.faithful || file.faithful {
-            RunConfig::paper(env, algo, steps)
+            RunConfig::paper(&env, algo, steps)
         } else {
-            RunConfig::recommended(env, algo, steps)
+            RunConfig::recommended(&env, algo, steps)
         };
         let mut table = table_of(&base)?;
         top.remove("faithful");
+        // The base holds the env as resolved above.
+        top.remove("env");
         overlay(&mut table, top);
         if merged.mode == Some(Mode::Async) && merged.max_lag.is_none() {
             table.insert(
@@ -266,9 +308,9 @@ fn defaults() -> &'static Defaults {
         let tables = |kind: EnvKind, dim: usize| -> Vec<toml::Table> {
             let env = EnvSpec::new(kind, dim).expect("a preset");
             [
-                RunConfig::recommended(env, Algo::A2c, DEFAULT_STEPS),
-                RunConfig::recommended(env, Algo::Saver, DEFAULT_STEPS),
-                RunConfig::paper(env, Algo::Saver, DEFAULT_STEPS),
+                RunConfig::recommended(&env, Algo::A2c, DEFAULT_STEPS),
+                RunConfig::recommended(&env, Algo::Saver, DEFAULT_STEPS),
+                RunConfig::paper(&env, Algo::Saver, DEFAULT_STEPS),
             ]
             .iter()
             .map(|c| table_of(c).unwrap_or_default())
@@ -349,14 +391,29 @@ mod tests {
     #[test]
     fn written_config_resolves_back_equal() {
         let env = EnvSpec::new(EnvKind::Select, 5).unwrap();
-        let mut bounded = RunConfig::recommended(env, Algo::Saver, 1000);
+        let mut bounded = RunConfig::recommended(&env, Algo::Saver, 1000);
         bounded.saver.kappa = Some(0.01);
         bounded.seed = 9;
         bounded.grad_clip = Some(0.5);
         bounded.mode = Mode::Async;
         bounded.max_lag = Some(2);
         bounded.pretrain.seed = 4;
-        for c in [bounded, RunConfig::paper(env, Algo::Saver, 1000)] {
+        // A user's env, written as name, layout and bounds.
+        let layout = EnvLayout {
+            obs_dim: 3,
+            continuous: 1,
+            choices: 2,
+            aligned_start: 1,
+            aligned_dim: 2,
+        };
+        let bounds = EnvBounds {
+            obs_low: vec![-1.0, -0.5, -0.5],
+            obs_high: vec![1.0, 0.5, 0.5],
+            max_change: 0.02,
+        };
+        let custom = EnvSpec::custom("maze", layout, bounds).unwrap();
+        let custom = RunConfig::recommended(&custom, Algo::Saver, 1000);
+        for c in [bounded, RunConfig::paper(&env, Algo::Saver, 1000), custom] {
             let p = temp("run.toml");
             std::fs::write(&p, c.to_toml()).unwrap();
             let back = RunSettings {

@@ -3,7 +3,7 @@
 //! its declared sizes (the learner then checks it against the env layout).
 
 use crate::config::{Algo, PretrainConfig};
-use crate::env::{EnvKind, EnvLayout, EnvSpec};
+use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
 use crate::link::ActorSettings;
 use crate::rollout::{Episode, Rollout};
 use crate::{CoreError, Result};
@@ -29,8 +29,8 @@ impl From<&EnvSpec> for pb::EnvSpec {
     fn from(s: &EnvSpec) -> Self {
         let b = s.bounds();
         Self {
-            kind: s.kind.name().to_string(),
-            dim: s.dim as u32,
+            kind: s.name().to_string(),
+            dim: s.dim() as u32,
             layout: Some((&s.layout()).into()),
             bounds: Some(pb::EnvBounds {
                 obs_low: b.obs_low,
@@ -95,10 +95,60 @@ impl TryFrom<&pb::RunSettings> for ActorSettings {
     }
 }
 
+impl From<&pb::EnvLayout> for EnvLayout {
+    fn from(l: &pb::EnvLayout) -> Self {
+        Self {
+            obs_dim: l.obs_dim as usize,
+            continuous: l.continuous as usize,
+            choices: l.choices as usize,
+            aligned_start: l.aligned_start as usize,
+            aligned_dim: l.aligned_dim as usize,
+        }
+    }
+}
+
 impl TryFrom<&pb::EnvSpec> for EnvSpec {
     type Error = CoreError;
+    /// A preset's name with its dimension (a layout and bounds sent along must be the
+    /// preset's), or any other name with its layout and bounds (a custom env).
     fn try_from(s: &pb::EnvSpec) -> Result<Self> {
-        EnvSpec::new(EnvKind::parse(&s.kind)?, s.dim as usize)
+        let bounds = s.bounds.as_ref().map(|b| EnvBounds {
+            obs_low: b.obs_low.clone(),
+            obs_high: b.obs_high.clone(),
+            max_change: b.max_change,
+        });
+        let layout = s.layout.as_ref().map(EnvLayout::from);
+        match EnvKind::parse(&s.kind) {
+            Ok(kind) => {
+                let spec = EnvSpec::new(kind, s.dim as usize)?;
+                if layout.is_some_and(|l| l != spec.layout())
+                    || bounds.is_some_and(|b| b != spec.bounds())
+                {
+                    return Err(CoreError::Config(format!(
+                        "env {spec}: the layout or bounds sent are not the preset's"
+                    )));
+                }
+                Ok(spec)
+            }
+            Err(_) => {
+                let (Some(layout), Some(bounds)) = (layout, bounds) else {
+                    return Err(CoreError::Config(format!(
+                        "env {:?} is no preset: send its layout and bounds",
+                        s.kind
+                    )));
+                };
+                let spec = EnvSpec::custom(&s.kind, layout, bounds)?;
+                if spec.dim() != s.dim as usize {
+                    return Err(CoreError::Config(format!(
+                        "env {:?}: dim {} is not the layout's aligned_dim {}",
+                        s.kind,
+                        s.dim,
+                        spec.dim()
+                    )));
+                }
+                Ok(spec)
+            }
+        }
     }
 }
 
@@ -224,5 +274,53 @@ impl TryFrom<pb::Rollout> for Rollout {
                 })
                 .collect(),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An env crosses the wire as data: a preset by name (its layout and bounds must
+    /// be the preset's), a user's env by name, layout and bounds; the run settings
+    /// with it, the policy family and its parameters included.
+    #[test]
+    fn envs_and_run_settings_cross_the_wire_as_data() {
+        let angle = EnvSpec::new(EnvKind::Angle, 4).unwrap();
+        let custom = EnvSpec::custom(
+            "reach",
+            EnvLayout {
+                obs_dim: 4,
+                continuous: 2,
+                choices: 0,
+                aligned_start: 2,
+                aligned_dim: 2,
+            },
+            EnvBounds {
+                obs_low: vec![-1.0; 4],
+                obs_high: vec![1.0; 4],
+                max_change: 0.05,
+            },
+        )
+        .unwrap();
+        for spec in [&angle, &custom] {
+            let back = EnvSpec::try_from(&pb::EnvSpec::from(spec)).unwrap();
+            assert_eq!(&back, spec);
+        }
+        let mut forged = pb::EnvSpec::from(&angle);
+        forged.bounds.as_mut().unwrap().max_change = 5.0;
+        let e = EnvSpec::try_from(&forged).unwrap_err().to_string();
+        assert!(e.contains("not the preset's"), "{e}");
+        let mut bare = pb::EnvSpec::from(&custom);
+        bare.layout = None;
+        assert!(EnvSpec::try_from(&bare).is_err());
+
+        let config = crate::config::RunConfig::recommended(&custom, Algo::Saver, 1);
+        let s = ActorSettings::of(&config);
+        let back = ActorSettings::try_from(&pb::RunSettings::from(&s)).unwrap();
+        assert_eq!(back.env, custom);
+        assert_eq!(back.policy.params(), s.policy.params());
+        assert_eq!(back.policy.params()["mu_bound"], 1.0);
+        assert_eq!((back.rollout, back.seed), (s.rollout, s.seed));
     }
 }

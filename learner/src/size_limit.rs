@@ -202,7 +202,7 @@ mod tests {
     fn the_limit_is_the_largest_encoding_of_the_registered_shape() {
         // angle d = 4, n = 8, one env: floats = 9·4 (obs) + 8·(4 + 4 + 4 + 8) + 8·4
         // (timeout_obs) = 228 → 1140 bytes; 8 steps · (2 + 6 + 15) = 184; + 1024.
-        let config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 4).unwrap(), Algo::A2c, 0);
+        let config = RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 4).unwrap(), Algo::A2c, 0);
         assert_eq!(config.rollout, 8);
         assert_eq!(max_rollout_bytes(&config, 1), 1140 + 184 + 1024);
         // A real rollout's encoding fits with room to spare.

@@ -116,7 +116,7 @@ impl PcpnService {
             .settings
             .as_ref()
             .and_then(|s| PretrainConfig::try_from(s).ok());
-        if found != Some(*spec) || settings != Some(*p) {
+        if found.as_ref() != Some(spec) || settings != Some(*p) {
             return Err(Status::failed_precondition(format!(
                 "the stored file for {spec} with {p:?} holds a PCPN for {} pretrained with {:?}",
                 found.map_or_else(|| "an unknown env".into(), |s| s.to_string()),
@@ -201,6 +201,7 @@ impl PcpnStoreApi for PcpnService {
             }));
         }
         let store = self.store.clone();
+        let shown = spec.to_string();
         let saved = tokio::task::spawn_blocking(move || -> Result<PathBuf, String> {
             let dev = saver_core::device();
             let every = (p.batches / 20).max(1);
@@ -226,7 +227,7 @@ impl PcpnStoreApi for PcpnService {
         let bytes = tokio::fs::read(&saved)
             .await
             .map_err(|e| Status::internal(format!("reading {}: {e}", saved.display())))?;
-        tracing::info!("PCPN for {spec} stored in {}", saved.display());
+        tracing::info!("PCPN for {shown} stored in {}", saved.display());
         Ok(Response::new(pb::PretrainReply {
             info: Some(info_of(&bytes)?),
             already_present: false,

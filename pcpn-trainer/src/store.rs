@@ -20,7 +20,7 @@ pub const FORMAT: &str = "saver-pcpn/1";
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     /// The file is for other dynamics.
-    #[error("{path}: this PCPN was pretrained for {found}, but the run needs {wanted}; pretrain one with `saver pretrain --env {} --dim {}` or point --pcpn at the right file", wanted.kind.name(), wanted.dim)]
+    #[error("{path}: this PCPN was pretrained for {found}, but the run needs {wanted}; pretrain one with `saver pretrain --env {} --dim {}` or point --pcpn at the right file", wanted.name(), wanted.dim())]
     SpecMismatch {
         /// File.
         path: String,
@@ -155,7 +155,7 @@ impl PcpnStore {
         meta.insert("weights_sha256".into(), hash.clone());
         checkpoint::save(&path, tensors, &meta)?;
         Ok(PcpnInfo {
-            spec: *spec,
+            spec: spec.clone(),
             pretrain: *p,
             meta,
             weights_sha256: hash,
@@ -241,7 +241,7 @@ pub fn load_pcpn_bytes(
         return Err(StoreError::SpecMismatch {
             path: shown,
             found: spec.to_string(),
-            wanted: *wanted,
+            wanted: wanted.clone(),
         });
     }
     let pretrain_json = loaded.meta.get(PRETRAIN_META).ok_or_else(|| {

@@ -54,8 +54,8 @@ pub fn pretrain_pcpn(
     progress: &mut dyn FnMut(&PretrainProgress),
 ) -> Result<PretrainReport, CoreError> {
     p.validate()?;
-    let source = Box::new(EnvSampler::new(*spec, p.seed, streams::PRETRAIN));
-    let mut held_out = EnvSampler::new(*spec, p.seed, HELD_OUT_SOURCE);
+    let source = Box::new(EnvSampler::new(spec, p.seed, streams::PRETRAIN)?);
+    let mut held_out = EnvSampler::new(spec, p.seed, HELD_OUT_SOURCE)?;
     pretrain_from(source, &mut held_out, p, dev, progress)
 }
 

@@ -135,7 +135,7 @@ pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
 fn time_update(algo: Algo, d: usize, seconds: f64, threads: usize) -> Result<(f64, f64, usize)> {
     let dev = Device::Cpu;
     let spec = EnvSpec::new(EnvKind::Angle, d)?;
-    let config = RunConfig::recommended(spec, algo, 1);
+    let config = RunConfig::recommended(&spec, algo, 1);
     let pcpn = (algo == Algo::Saver)
         .then(|| random_pcpn(&spec, &dev))
         .transpose()?;
@@ -224,7 +224,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let out = std::env::temp_dir().join(format!("saver-bench-{}", std::process::id()));
     for (algo, d) in [(Algo::A2c, 4), (Algo::Saver, 4)] {
         let spec = EnvSpec::new(EnvKind::Angle, d)?;
-        let mut config = RunConfig::recommended(spec, algo, 0);
+        let mut config = RunConfig::recommended(&spec, algo, 0);
         config.steps = args.cycle_updates * config.batch_transitions();
         let pcpn = (algo == Algo::Saver)
             .then(|| random_pcpn(&spec, &dev))

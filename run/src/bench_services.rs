@@ -33,7 +33,7 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
 /// there is no /dev/shm.
 pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64, Option<f64>)> {
     let spec = EnvSpec::new(EnvKind::Angle, 4)?;
-    let mut config = RunConfig::recommended(spec, algo, 0);
+    let mut config = RunConfig::recommended(&spec, algo, 0);
     config.steps = updates * config.batch_transitions();
     let dir = std::env::temp_dir().join(format!(
         "saver-bench-svc-{}-{}",
@@ -98,7 +98,7 @@ fn over_processes(
 /// Transitions per second the learner's gRPC ingress accepts with no updates: 16
 /// streams send valid rollouts for `seconds`; a thread drains the queue.
 pub fn ingress(seconds: f64) -> Result<f64> {
-    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 4)?, Algo::A2c, u64::MAX);
+    let mut config = RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 4)?, Algo::A2c, u64::MAX);
     config.mode = saver_core::config::Mode::Async;
     let layout = config.env.layout();
     let (hub, rx) = Hub::new(
@@ -201,7 +201,7 @@ pub fn ingress(seconds: f64) -> Result<f64> {
 /// Latency from publishing a version to its arrival at each of 16 WatchWeights
 /// subscribers, over `versions` publications of the paper's angle-d4 agent.
 pub fn broadcast_latency(versions: u64) -> Result<(f64, f64)> {
-    let config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 4)?, Algo::A2c, 1);
+    let config = RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 4)?, Algo::A2c, 1);
     let dev = candle_core::Device::Cpu;
     let tensors = saver_core::algo::build(&config, None, &dev)?.policy_tensors()?;
     let (hub, _rx) = Hub::new(

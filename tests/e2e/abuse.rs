@@ -95,7 +95,7 @@ fn extreme_finite_values_are_refused_and_a_poisoned_batch_changes_nothing() {
         settings: ActorSettings::of(&config),
     };
     let mut policy = Policy::new(weights.clone(), layout, config.head).unwrap();
-    let good: Rollout = Actor::new(&assignment, 1).collect(&mut policy);
+    let good: Rollout = Actor::new(&assignment, 1).unwrap().collect(&mut policy);
     let mut poisoned = good.clone();
     poisoned.obs.iter_mut().for_each(|x| *x = 1e30);
     poisoned.vector_reward.iter_mut().for_each(|x| *x = 3e38);
@@ -259,7 +259,7 @@ fn episode_reports_must_match_the_steps_the_learner_counted() {
     rt.block_on(async {
         let (mut client, assignment) = register(&url, &config).await;
         let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
-        let first = pb::Rollout::from(&Actor::new(&assignment, 1).collect(&mut policy));
+        let first = pb::Rollout::from(&Actor::new(&assignment, 1).unwrap().collect(&mut policy));
         assert_eq!(first.seq, 0);
         assert_eq!(first.episodes.len(), 2);
         let (tx, mut acks) = open_stream(&mut client, &first, false).await;
@@ -369,7 +369,7 @@ fn a_link_that_the_learner_forgets_registers_again() {
     hub.unregister(a.actor_id, a.session);
     let w = link.weights(0).unwrap();
     let mut policy = a.settings.policy.acting(w).unwrap();
-    let mut actor = Actor::new(&a, 1);
+    let mut actor = Actor::new(&a, 1).unwrap();
     let mut lost = None;
     for _ in 0..50 {
         match link.push(actor.collect(policy.as_mut())) {

@@ -17,7 +17,7 @@ use std::time::Duration;
 
 /// A2C on angle d = 2 for `updates` sync updates of `actors` actors.
 pub fn small(actors: u32, updates: u64) -> RunConfig {
-    let mut c = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
+    let mut c = RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
     c.actors = actors;
     c.steps = updates * actors as u64 * c.envs_per_actor as u64 * c.rollout as u64;
     c

@@ -73,14 +73,14 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
     // for the bytes), SAVER's take them over the stream. SAVER's episodes end at 30
     // steps and bootstrap there, so that timeouts and their observations cross the wire.
     let mut saver = RunConfig::paper(
-        EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::Saver,
         20 * 4 * 8,
     );
     saver.max_episode_steps = 30;
     saver.bootstrap_timeout = true;
     let a2c = RunConfig::paper(
-        EnvSpec::new(EnvKind::Select, 3).unwrap(),
+        &EnvSpec::new(EnvKind::Select, 3).unwrap(),
         Algo::A2c,
         20 * 4 * 8,
     );
@@ -159,7 +159,7 @@ fn an_actor_reports_each_timeout_with_the_observation_it_reached() {
     // 5 (success in 3 steps from a uniform start has probability ~1e-16). The envs are
     // reset after a timeout, so the observation reached is the one before the step plus
     // its state change, not the next row of `obs`. The rollout survives the wire.
-    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 16).unwrap(), Algo::A2c, 1);
+    let mut config = RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 16).unwrap(), Algo::A2c, 1);
     config.max_episode_steps = 3;
     let dev = candle_core::Device::Cpu;
     let tensors = saver_core::algo::build(&config, None, &dev)
@@ -177,7 +177,9 @@ fn an_actor_reports_each_timeout_with_the_observation_it_reached() {
         session: 1,
         settings: saver_core::link::ActorSettings::of(&config),
     };
-    let r = saver_actor::Actor::new(&assignment, 1).collect(&mut policy);
+    let r = saver_actor::Actor::new(&assignment, 1)
+        .unwrap()
+        .collect(&mut policy);
     r.validate(&layout, assignment.settings.policy.payload_width())
         .unwrap();
     assert_eq!(r.timeouts, vec![2, 5]);
@@ -202,7 +204,7 @@ fn an_actor_reports_each_timeout_with_the_observation_it_reached() {
 #[test]
 fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
     let mut config = RunConfig::paper(
-        EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::A2c,
         60 * 3 * 8,
     );
@@ -267,7 +269,7 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
     // version 0 and hands its rollout in only once the learner is at version 2. It must
     // be dropped as stale, and no update may use a rollout older than max_lag.
     let mut config = RunConfig::paper(
-        EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::A2c,
         400 * 2 * 8,
     );
@@ -287,7 +289,9 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
     let v0 = slow.weights(0).unwrap();
     assert_eq!(v0.version, 0);
     let mut policy = saver_core::nets::Policy::new(v0, config.env.layout(), config.head).unwrap();
-    let old = saver_actor::Actor::new(&assignment, 1).collect(&mut policy);
+    let old = saver_actor::Actor::new(&assignment, 1)
+        .unwrap()
+        .collect(&mut policy);
     let actors: Vec<_> = (0..2)
         .map(|i| {
             let mut link = saver_learner::InProcessLink::new(hub.clone());

@@ -150,7 +150,7 @@ pub async fn register_and_roll(
     config: &RunConfig,
 ) -> (LearnerClient<tonic::transport::Channel>, pb::Rollout) {
     let (client, assignment) = register(url, config).await;
-    let mut actor = Actor::new(&assignment, 1);
+    let mut actor = Actor::new(&assignment, 1).unwrap();
     let mut policy = Policy::new(hub.latest(), config.env.layout(), config.head).unwrap();
     let mut good = actor.collect(&mut policy);
     good.seq = 5;
@@ -190,7 +190,7 @@ pub async fn register(
             s.rollout,
             s.seed,
             s.max_episode_steps,
-            s.env
+            &s.env
         ),
         (
             want.algo,
@@ -198,7 +198,7 @@ pub async fn register(
             want.rollout,
             want.seed,
             want.max_episode_steps,
-            want.env
+            &want.env
         )
     );
     assert_eq!(s.policy.params(), want.policy.params());
@@ -244,7 +244,7 @@ pub fn one_actor_learner(name: &str) -> Served {
 
 /// [`one_actor_learner`] with `change` applied to its config.
 pub fn learner_with(name: &str, change: impl FnOnce(&mut RunConfig)) -> Served {
-    let mut config = RunConfig::paper(EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
+    let mut config = RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 0);
     config.actors = 1;
     config.steps = 1_000_000;
     change(&mut config);

@@ -42,7 +42,7 @@ fn assert_learned(o: &saver_learner::TrainerOutcome, algo: &str, start_min: f64)
 fn a2c_learns_angle_d2() {
     let dir = temp_dir("learn");
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
-    let config = RunConfig::paper(spec, Algo::A2c, 150_000);
+    let config = RunConfig::paper(&spec, Algo::A2c, 150_000);
     let o = train_with(&config, &dir, None, Arc::new(AtomicBool::new(false)), false).unwrap();
     assert_learned(&o, "A2C", 300.0);
     std::fs::remove_dir_all(dir).ok();
@@ -53,7 +53,7 @@ fn a2c_learns_angle_d2() {
 #[test]
 fn sync_training_is_bit_for_bit_repeatable() {
     let spec = EnvSpec::new(EnvKind::Select, 3).unwrap();
-    let mut config = RunConfig::paper(spec, Algo::A2c, 20 * 4 * 8);
+    let mut config = RunConfig::paper(&spec, Algo::A2c, 20 * 4 * 8);
     config.actors = 4;
     let mut runs = Vec::new();
     for i in 0..2 {
@@ -96,7 +96,7 @@ fn column(metrics: &std::path::Path, name: &str) -> Vec<f64> {
 fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
     let dir = temp_dir("saver-learn");
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
-    let mut config = RunConfig::recommended(spec, Algo::Saver, 150_000);
+    let mut config = RunConfig::recommended(&spec, Algo::Saver, 150_000);
     config.pretrain.batches = 1_000;
     let store = saver_pcpn_trainer::PcpnStore::new(dir.join("pcpn"));
     let pcpn = saver_run::pretrain::pcpn_for_run(&mut config, None, &store, None).unwrap();
@@ -123,7 +123,7 @@ fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
 fn faithful_saver_drives_mu_out_of_the_pcpn_domain() {
     let dir = temp_dir("faithful");
     let spec = EnvSpec::new(EnvKind::Angle, 4).unwrap();
-    let config = RunConfig::paper(spec, Algo::Saver, 60_000);
+    let config = RunConfig::paper(&spec, Algo::Saver, 60_000);
     let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("results/pcpn/pcpn-angle-d4-8dad6c2f9fa0.safetensors");
     let (pcpn, _) = saver_pcpn_trainer::load_pcpn(&file, &spec, &saver_core::device()).unwrap();

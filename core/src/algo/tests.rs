@@ -122,7 +122,7 @@ impl Fixture {
 /// Central differences (h = 1e-6, f64) against candle's autograd for every entry of μ
 /// and log σ: the gradient reaches the agent's outputs through the frozen PCPN.
 fn check_gradient(spec: EnvSpec, kappa: Option<f64>) {
-    let (fx, mu, ls) = Fixture::new(spec, kappa);
+    let (fx, mu, ls) = Fixture::new(spec.clone(), kappa);
     let b = fx.obs.dim(0).unwrap();
     let mu_v = Var::from_slice(&mu, (b, mu.len() / b), &Device::Cpu).unwrap();
     let ls_v = Var::from_slice(&ls, (b, ls.len() / b), &Device::Cpu).unwrap();
@@ -177,7 +177,7 @@ fn saver_actor_gradient_matches_finite_differences_for_every_layout() {
 #[test]
 fn saver_update_leaves_the_pcpn_bit_identical_and_moves_agent_and_critic() {
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
-    let config = RunConfig::paper(spec, Algo::Saver, 1);
+    let config = RunConfig::paper(&spec, Algo::Saver, 1);
     let pcpn = random_pcpn(&spec.layout(), DType::F32);
     let values = |t: Vec<(String, Tensor)>| -> Vec<(String, Vec<f32>)> {
         t.into_iter()
@@ -245,7 +245,7 @@ fn acting_policy_equals_the_training_network() {
 #[test]
 fn a2c_update_is_finite_and_changes_the_agent() {
     let spec = EnvSpec::new(EnvKind::Select, 3).unwrap();
-    let config = RunConfig::paper(spec, Algo::A2c, 1);
+    let config = RunConfig::paper(&spec, Algo::A2c, 1);
     let mut a2c = A2c::new(&config, &Device::Cpu).unwrap();
     let before = a2c.policy_tensors().unwrap();
     let stats = a2c.update(&small_batch(&spec.layout())).unwrap();
@@ -267,7 +267,7 @@ fn a2c_bootstraps_at_a_timeout_from_the_observation_reached() {
     batch.timeouts = vec![1];
     batch.timeout_obs = vec![0.9, -0.8];
     let value_loss = |bootstrap: bool, batch: &crate::rollout::Batch| {
-        let mut config = RunConfig::paper(spec, Algo::A2c, 1);
+        let mut config = RunConfig::paper(&spec, Algo::A2c, 1);
         config.bootstrap_timeout = bootstrap;
         let mut a2c = A2c::new(&config, &Device::Cpu).unwrap();
         a2c.update(batch).unwrap().get("value_loss").unwrap()
@@ -314,7 +314,7 @@ fn saver_bootstraps_at_a_timeout_only_when_asked() {
     batch.timeouts = vec![1];
     batch.timeout_obs = vec![0.9, -0.8];
     let stats = |bootstrap: bool, batch: &crate::rollout::Batch| {
-        let mut config = RunConfig::recommended(spec, Algo::Saver, 1);
+        let mut config = RunConfig::recommended(&spec, Algo::Saver, 1);
         config.bootstrap_timeout = bootstrap;
         let pcpn = random_pcpn(&l, DType::F32);
         let mut saver = Saver::new(&config, pcpn, &Device::Cpu).unwrap();

@@ -49,11 +49,7 @@ impl Angle {
 
 impl Env for Angle {
     fn layout(&self) -> EnvLayout {
-        super::EnvSpec {
-            kind: super::EnvKind::Angle,
-            dim: self.pos.len(),
-        }
-        .layout()
+        super::EnvKind::Angle.layout(self.pos.len())
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {

@@ -70,11 +70,7 @@ impl Arm {
 
 impl Env for Arm {
     fn layout(&self) -> EnvLayout {
-        super::EnvSpec {
-            kind: super::EnvKind::Arm,
-            dim: 2,
-        }
-        .layout()
+        super::EnvKind::Arm.layout(2)
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {

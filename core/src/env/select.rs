@@ -47,11 +47,7 @@ pub(crate) fn argmax(xs: &[f32]) -> usize {
 
 impl Env for Select {
     fn layout(&self) -> EnvLayout {
-        super::EnvSpec {
-            kind: super::EnvKind::Select,
-            dim: self.pos.len(),
-        }
-        .layout()
+        super::EnvKind::Select.layout(self.pos.len())
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {

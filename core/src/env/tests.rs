@@ -120,7 +120,7 @@ fn timeout_at_the_step_limit_is_done() {
 #[test]
 fn resets_draw_from_the_spec_ranges() {
     let mut rng = rng_for(7, 0);
-    let mut env = EnvSpec::new(EnvKind::Arm, 2).unwrap().make(1000);
+    let mut env = EnvSpec::new(EnvKind::Arm, 2).unwrap().make(1000).unwrap();
     let mut obs = [0.0; 6];
     for _ in 0..200 {
         env.reset(&mut rng, &mut obs);

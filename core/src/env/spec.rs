@@ -1,0 +1,459 @@
+//! Environments as data: an [`EnvSpec`] is a name, a dimension d, a layout
+//! ([`EnvLayout`]) and the values the env can produce ([`EnvBounds`]). The paper's
+//! angle, select and arm are presets of it ([`EnvKind`]); a user's env is a spec of its
+//! own ([`EnvSpec::custom`]) whose actors bring the env itself.
+
+use super::{Angle, Arm, Env, Select};
+use crate::{CoreError, Result};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// Largest d, observation or action size of an env spec.
+pub const MAX_ENV_DIM: usize = 1024;
+
+/// The paper's environment presets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum EnvKind {
+    /// Pairwise (step, angle) moves in a d-cube, d even (paper Fig. 3).
+    Angle,
+    /// Choose one dimension and a step in a d-cube (paper Fig. 4).
+    Select,
+    /// Two-joint robot arm reaching a goal (paper Fig. 5).
+    Arm,
+}
+
+impl EnvKind {
+    /// Parses `angle`, `select` or `arm`.
+    pub fn parse(s: &str) -> Result<Self> {
+        <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            CoreError::Config(format!(
+                "env: unknown environment {s:?} (expected angle, select or arm)"
+            ))
+        })
+    }
+
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Angle => "angle",
+            Self::Select => "select",
+            Self::Arm => "arm",
+        }
+    }
+
+    /// The layout of this preset at dimension `d`.
+    pub fn layout(self, d: usize) -> EnvLayout {
+        match self {
+            Self::Angle => EnvLayout {
+                obs_dim: d,
+                continuous: d,
+                choices: 0,
+                aligned_start: 0,
+                aligned_dim: d,
+            },
+            Self::Select => EnvLayout {
+                obs_dim: d,
+                continuous: 1,
+                choices: d,
+                aligned_start: 0,
+                aligned_dim: d,
+            },
+            Self::Arm => EnvLayout {
+                obs_dim: 6,
+                continuous: 2,
+                choices: 0,
+                aligned_start: 4,
+                aligned_dim: 2,
+            },
+        }
+    }
+
+    /// What this preset's observations and steps can hold at dimension `d`.
+    pub fn bounds(self, d: usize) -> EnvBounds {
+        match self {
+            // Positions stay in the cube; a step moves each coordinate by at most
+            // 0.1 (angle: 0.1·|sin φ|, 0.1·|cos φ|; select: 0.1 on one coordinate).
+            Self::Angle | Self::Select => EnvBounds {
+                obs_low: vec![-1.0; d],
+                obs_high: vec![1.0; d],
+                max_change: 0.1,
+            },
+            // obs = [goal in [-1, 1]^2, angles in [-π, π), hand in [-2, 2]^2]. Each
+            // joint turns by at most 0.02π per step; the hand moves by at most its
+            // lever arm times that: 2·0.02π (joint 1) + 1·0.02π (joint 2) < 0.19.
+            Self::Arm => {
+                let pi = std::f32::consts::PI;
+                EnvBounds {
+                    obs_low: vec![-1.0, -1.0, -pi, -pi, -2.0, -2.0],
+                    obs_high: vec![1.0, 1.0, pi, pi, 2.0, 2.0],
+                    max_change: 0.19,
+                }
+            }
+        }
+    }
+}
+
+/// An environment described as data, so that any actor can speak it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvLayout {
+    /// Observation length.
+    pub obs_dim: usize,
+    /// Gaussian action dims: the agent outputs one mean and one log-std per dim.
+    pub continuous: usize,
+    /// Size of the categorical choice (0: none). The agent outputs that many logits.
+    pub choices: usize,
+    /// First observation entry of the state-aligned part.
+    pub aligned_start: usize,
+    /// d: number of state-aligned entries (and of vector reward components).
+    pub aligned_dim: usize,
+}
+
+impl EnvLayout {
+    /// Length of the agent's mean output: continuous means, then the choice logits.
+    pub fn mu_dim(&self) -> usize {
+        self.continuous + self.choices
+    }
+    /// Length of the trainable log-std vector.
+    pub fn log_std_dim(&self) -> usize {
+        self.continuous
+    }
+    /// Length of a stored action: continuous values then a one-hot of the choice.
+    pub fn action_dim(&self) -> usize {
+        self.continuous + self.choices
+    }
+    /// Input width of the PCPN and of the vector critic: [obs, mu, log sigma].
+    pub fn pcpn_input_dim(&self) -> usize {
+        self.obs_dim + self.mu_dim() + self.log_std_dim()
+    }
+}
+
+/// The values an environment can produce, as data: the bounds of each observation
+/// entry and the largest change of a state-aligned coordinate in one step (which
+/// bounds the vector reward too: ||p - g| - |p' - g|| <= |p' - p|).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvBounds {
+    /// Smallest value of each observation entry.
+    pub obs_low: Vec<f32>,
+    /// Largest value of each observation entry.
+    pub obs_high: Vec<f32>,
+    /// Largest |p' - p| of one aligned coordinate in one step.
+    pub max_change: f32,
+}
+
+/// An environment: the identity of the dynamics a PCPN models and what actors and the
+/// learner need to know of it. Valid by construction.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "EnvRepr", into = "EnvRepr")]
+pub struct EnvSpec {
+    /// The preset, if it is one.
+    preset: Option<EnvKind>,
+    /// The name (a preset's, or a user's).
+    name: String,
+    /// Layout.
+    layout: EnvLayout,
+    /// Bounds.
+    bounds: EnvBounds,
+}
+
+impl fmt::Display for EnvSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}-d{}", self.name, self.dim())
+    }
+}
+
+impl EnvSpec {
+    /// The preset `kind` at dimension `dim` (validated for the kind).
+    pub fn new(kind: EnvKind, dim: usize) -> Result<Self> {
+        match kind {
+            EnvKind::Angle if dim == 0 || !dim.is_multiple_of(2) => Err(CoreError::Config(
+                format!("dim: angle needs an even dimension >= 2, got {dim}"),
+            )),
+            EnvKind::Select if dim == 0 => Err(CoreError::Config(
+                "dim: select needs a dimension >= 1, got 0".into(),
+            )),
+            EnvKind::Arm if dim != 2 => Err(CoreError::Config(format!(
+                "dim: the arm's hand moves in 2 dimensions, got dim {dim}"
+            ))),
+            _ if dim > MAX_ENV_DIM => Err(CoreError::Config(format!(
+                "dim: {dim} is larger than the supported {MAX_ENV_DIM}"
+            ))),
+            _ => Ok(Self {
+                preset: Some(kind),
+                name: kind.name().to_string(),
+                layout: kind.layout(dim),
+                bounds: kind.bounds(dim),
+            }),
+        }
+    }
+
+    /// A user's environment: `name` (letters, digits, `_`, `.`, `-`; not a preset's),
+    /// its layout and bounds, all checked.
+    pub fn custom(name: &str, layout: EnvLayout, bounds: EnvBounds) -> Result<Self> {
+        let bad = |why: String| Err(CoreError::Config(format!("env {name:?}: {why}")));
+        let name_ok = !name.is_empty()
+            && name.len() <= 64
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '.' | '-'));
+        if !name_ok {
+            return bad("a name is 1-64 letters, digits, '_', '.' or '-'".into());
+        }
+        if EnvKind::parse(name).is_ok() {
+            return bad("is a preset's name; a custom env needs its own".into());
+        }
+        let l = &layout;
+        for (what, v) in [
+            ("obs_dim", l.obs_dim),
+            ("aligned_dim", l.aligned_dim),
+            ("action dims", l.action_dim()),
+        ] {
+            if !(1..=MAX_ENV_DIM).contains(&v) {
+                return bad(format!("{what} {v} is not in 1..={MAX_ENV_DIM}"));
+            }
+        }
+        if l.aligned_start + l.aligned_dim > l.obs_dim {
+            return bad(format!(
+                "the aligned entries {}..{} are not inside the {} observation entries",
+                l.aligned_start,
+                l.aligned_start + l.aligned_dim,
+                l.obs_dim
+            ));
+        }
+        let b = &bounds;
+        if b.obs_low.len() != l.obs_dim || b.obs_high.len() != l.obs_dim {
+            return bad(format!(
+                "bounds have {} and {} entries for {} observation entries",
+                b.obs_low.len(),
+                b.obs_high.len(),
+                l.obs_dim
+            ));
+        }
+        let finite_interval = |lo: f32, hi: f32| lo.is_finite() && hi.is_finite() && lo <= hi;
+        if let Some(i) = (0..l.obs_dim).find(|&i| !finite_interval(b.obs_low[i], b.obs_high[i])) {
+            return bad(format!(
+                "observation entry {i}: [{}, {}] is not a finite interval",
+                b.obs_low[i], b.obs_high[i]
+            ));
+        }
+        if !(b.max_change.is_finite() && b.max_change > 0.0) {
+            return bad(format!(
+                "max_change {} must be finite and > 0",
+                b.max_change
+            ));
+        }
+        Ok(Self {
+            preset: None,
+            name: name.to_string(),
+            layout,
+            bounds,
+        })
+    }
+
+    /// The preset it is, if it is one.
+    pub fn kind(&self) -> Option<EnvKind> {
+        self.preset
+    }
+
+    /// The name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// d: the state-aligned entries (and vector reward components).
+    pub fn dim(&self) -> usize {
+        self.layout.aligned_dim
+    }
+
+    /// The data layout.
+    pub fn layout(&self) -> EnvLayout {
+        self.layout
+    }
+
+    /// What its observations and steps can hold (the learner refuses rollouts
+    /// outside it).
+    pub fn bounds(&self) -> EnvBounds {
+        self.bounds.clone()
+    }
+
+    /// A fresh instance of a preset with the default goal; a custom env's actors bring
+    /// their own.
+    pub fn make(&self, max_steps: u32) -> Result<Box<dyn Env>> {
+        match self.preset {
+            Some(EnvKind::Angle) => Ok(Box::new(Angle::new(self.dim(), max_steps))),
+            Some(EnvKind::Select) => Ok(Box::new(Select::new(self.dim(), max_steps))),
+            Some(EnvKind::Arm) => Ok(Box::new(Arm::new(max_steps))),
+            None => Err(CoreError::Config(format!(
+                "{self} is not a preset of this build: its actors bring the env"
+            ))),
+        }
+    }
+}
+
+/// The written form of [`EnvSpec`]: a preset as `kind` and `dim`; a custom env as
+/// `name`, `layout` and `bounds`.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnvRepr {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    kind: Option<EnvKind>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    name: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    dim: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    layout: Option<EnvLayout>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    bounds: Option<EnvBounds>,
+}
+
+impl TryFrom<EnvRepr> for EnvSpec {
+    type Error = CoreError;
+    fn try_from(r: EnvRepr) -> Result<Self> {
+        match (r.kind, r.name, r.layout, r.bounds) {
+            (Some(kind), None, None, None) => {
+                let dim = r
+                    .dim
+                    .ok_or_else(|| CoreError::Config("env.dim is missing".into()))?;
+                Self::new(kind, dim)
+            }
+            (None, Some(name), Some(layout), Some(bounds)) => {
+                let spec = Self::custom(&name, layout, bounds)?;
+                match r.dim {
+                    Some(d) if d != spec.dim() => Err(CoreError::Config(format!(
+                        "env.dim {d} is not the layout's aligned_dim {}",
+                        spec.dim()
+                    ))),
+                    _ => Ok(spec),
+                }
+            }
+            _ => Err(CoreError::Config(
+                "env: a preset (kind and dim) or a custom env (name, layout and bounds)".into(),
+            )),
+        }
+    }
+}
+
+impl From<EnvSpec> for EnvRepr {
+    fn from(s: EnvSpec) -> Self {
+        let dim = Some(s.dim());
+        match s.preset {
+            Some(kind) => Self {
+                kind: Some(kind),
+                name: None,
+                dim,
+                layout: None,
+                bounds: None,
+            },
+            None => Self {
+                kind: None,
+                name: Some(s.name),
+                dim,
+                layout: Some(s.layout),
+                bounds: Some(s.bounds),
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A goal-reaching env of a user's: 4 observation entries, the last two the
+    /// position, one continuous action per position entry.
+    fn reacher() -> EnvSpec {
+        let layout = EnvLayout {
+            obs_dim: 4,
+            continuous: 2,
+            choices: 0,
+            aligned_start: 2,
+            aligned_dim: 2,
+        };
+        let bounds = EnvBounds {
+            obs_low: vec![-1.0, -1.0, -0.3, -0.3],
+            obs_high: vec![1.0, 1.0, 0.3, 0.3],
+            max_change: 0.05,
+        };
+        EnvSpec::custom("reacher", layout, bounds).unwrap()
+    }
+
+    #[test]
+    fn presets_and_custom_envs_read_back_and_presets_keep_their_short_form() {
+        let angle = EnvSpec::new(EnvKind::Angle, 4).unwrap();
+        assert_eq!(
+            serde_json::to_string(&angle).unwrap(),
+            r#"{"kind":"angle","dim":4}"#
+        );
+        let r = reacher();
+        assert_eq!(r.to_string(), "reacher-d2");
+        assert_eq!(r.kind(), None);
+        for s in [angle, r] {
+            let json: EnvSpec = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+            assert_eq!(json, s);
+            let toml_text = toml::to_string(&s).unwrap();
+            assert_eq!(toml::from_str::<EnvSpec>(&toml_text).unwrap(), s);
+        }
+        assert!(reacher()
+            .make(10)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("bring"));
+    }
+
+    #[test]
+    fn bad_custom_envs_are_refused_by_what_is_wrong() {
+        let r = reacher();
+        let (l, b) = (r.layout(), r.bounds());
+        let cases: Vec<(EnvLayout, EnvBounds, &str, &str)> = vec![
+            (l, b.clone(), "angle", "preset"),
+            (l, b.clone(), "re acher", "letters"),
+            (
+                EnvLayout {
+                    aligned_start: 3,
+                    ..l
+                },
+                b.clone(),
+                "r",
+                "inside",
+            ),
+            (
+                l,
+                EnvBounds {
+                    obs_low: vec![0.0; 3],
+                    ..b.clone()
+                },
+                "r",
+                "entries",
+            ),
+            (
+                l,
+                EnvBounds {
+                    obs_high: vec![1.0, 1.0, f32::INFINITY, 0.3],
+                    ..b.clone()
+                },
+                "r",
+                "entry 2",
+            ),
+            (
+                l,
+                EnvBounds {
+                    max_change: 0.0,
+                    ..b.clone()
+                },
+                "r",
+                "max_change",
+            ),
+            (EnvLayout { obs_dim: 0, ..l }, b.clone(), "r", "obs_dim"),
+        ];
+        for (layout, bounds, name, want) in cases {
+            let e = EnvSpec::custom(name, layout, bounds)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(want), "{want}: {e}");
+        }
+    }
+}
