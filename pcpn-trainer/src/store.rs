@@ -27,7 +27,7 @@ pub enum StoreError {
         /// Spec in the file.
         found: String,
         /// Spec the caller needs.
-        wanted: EnvSpec,
+        wanted: Box<EnvSpec>,
     },
     /// The file was pretrained with other settings.
     #[error("{path}: this PCPN was pretrained with {found}, but the run asks for {wanted}; a PCPN of other settings is never used in their place")]
@@ -241,7 +241,7 @@ pub fn load_pcpn_bytes(
         return Err(StoreError::SpecMismatch {
             path: shown,
             found: spec.to_string(),
-            wanted: wanted.clone(),
+            wanted: Box::new(wanted.clone()),
         });
     }
     let pretrain_json = loaded.meta.get(PRETRAIN_META).ok_or_else(|| {

@@ -131,13 +131,8 @@ impl Algorithm for A2c {
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {
-        let mut tensors = self.agent.params().tensors()?;
-        tensors.extend(self.opt.slots());
-        let numbers = [(super::OPTIMIZER_STEPS.to_string(), self.opt.steps() as u128)];
-        Ok(super::AlgoState {
-            tensors,
-            numbers: numbers.into_iter().collect(),
-        })
+        let tensors = self.agent.params().tensors()?;
+        Ok(super::AlgoState::with_optimizer(tensors, &self.opt))
     }
 
     fn restore_state(
@@ -146,7 +141,6 @@ impl Algorithm for A2c {
         numbers: &std::collections::BTreeMap<String, u128>,
     ) -> Result<()> {
         self.agent.params().load(get)?;
-        let steps = super::saved_number(numbers, super::OPTIMIZER_STEPS)?;
-        self.opt.restore(get, steps as u64)
+        super::restore_optimizer(&mut self.opt, get, numbers)
     }
 }

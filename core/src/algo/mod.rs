@@ -14,6 +14,7 @@ pub use saver_grad::{policy_grads, saver_actor_losses, InputGrad, PcpnGrad, Save
 use crate::acting::PolicyFamily;
 use crate::config::{Algo, RunConfig};
 use crate::nets::{Gaussian, Pcpn};
+use crate::optim::Optimizer;
 use crate::rollout::Batch;
 use crate::{CoreError, Result};
 use candle_core::{Device, Tensor};
@@ -79,6 +80,27 @@ pub struct AlgoState {
 pub const OPTIMIZER_STEPS: &str = "optimizer_steps";
 /// Key of the learner's random-stream position (SAVER's τ draws).
 pub const RNG_WORD_POS: &str = "rng_word_pos";
+
+impl AlgoState {
+    /// The networks' `tensors` with `opt`'s slots and step count.
+    pub(crate) fn with_optimizer(mut tensors: Vec<(String, Tensor)>, opt: &Optimizer) -> Self {
+        tensors.extend(opt.slots());
+        let numbers = [(OPTIMIZER_STEPS.to_string(), opt.steps() as u128)];
+        Self {
+            tensors,
+            numbers: numbers.into_iter().collect(),
+        }
+    }
+}
+
+/// Restores `opt` (slots and step count) from a saved state.
+pub(crate) fn restore_optimizer(
+    opt: &mut Optimizer,
+    get: &dyn Fn(&str) -> Option<Tensor>,
+    numbers: &BTreeMap<String, u128>,
+) -> Result<()> {
+    opt.restore(get, saved_number(numbers, OPTIMIZER_STEPS)? as u64)
+}
 
 /// The number `key` of a saved state.
 pub(crate) fn saved_number(numbers: &BTreeMap<String, u128>, key: &str) -> Result<u128> {

@@ -255,15 +255,11 @@ impl Algorithm for Saver {
     fn save_state(&self) -> Result<super::AlgoState> {
         let mut tensors = self.agent.params().tensors()?;
         tensors.extend(self.critic.params().tensors()?);
-        tensors.extend(self.opt.slots());
-        let numbers = [
-            (super::OPTIMIZER_STEPS.to_string(), self.opt.steps() as u128),
-            (super::RNG_WORD_POS.to_string(), self.rng.get_word_pos()),
-        ];
-        Ok(super::AlgoState {
-            tensors,
-            numbers: numbers.into_iter().collect(),
-        })
+        let mut state = super::AlgoState::with_optimizer(tensors, &self.opt);
+        state
+            .numbers
+            .insert(super::RNG_WORD_POS.to_string(), self.rng.get_word_pos());
+        Ok(state)
     }
 
     fn restore_state(
@@ -273,8 +269,7 @@ impl Algorithm for Saver {
     ) -> Result<()> {
         self.agent.params().load(get)?;
         self.critic.params().load(get)?;
-        let steps = super::saved_number(numbers, super::OPTIMIZER_STEPS)?;
-        self.opt.restore(get, steps as u64)?;
+        super::restore_optimizer(&mut self.opt, get, numbers)?;
         self.rng
             .set_word_pos(super::saved_number(numbers, super::RNG_WORD_POS)?);
         Ok(())

@@ -14,7 +14,9 @@ use crate::{CoreError, Result};
 use clap::Args;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+
+mod help;
+pub use help::help;
 
 /// Env of a run with no `--env`.
 pub const DEFAULT_ENV: EnvKind = EnvKind::Angle;
@@ -294,88 +296,6 @@ impl RunSettings {
     }
 }
 
-/// The defaults of one setting, read from the configs they come from.
-struct Defaults {
-    /// (label, config) pairs: a2c and saver defaults, the paper's saver; on angle d=4.
-    angle: Vec<(&'static str, toml::Table)>,
-    /// The same on select and arm.
-    others: Vec<toml::Table>,
-}
-
-fn defaults() -> &'static Defaults {
-    static D: OnceLock<Defaults> = OnceLock::new();
-    D.get_or_init(|| {
-        let tables = |kind: EnvKind, dim: usize| -> Vec<toml::Table> {
-            let env = EnvSpec::new(kind, dim).expect("a preset");
-            [
-                RunConfig::recommended(&env, Algo::A2c, DEFAULT_STEPS),
-                RunConfig::recommended(&env, Algo::Saver, DEFAULT_STEPS),
-                RunConfig::paper(&env, Algo::Saver, DEFAULT_STEPS),
-            ]
-            .iter()
-            .map(|c| table_of(c).unwrap_or_default())
-            .collect()
-        };
-        let angle = tables(EnvKind::Angle, 4);
-        let mut others = tables(EnvKind::Select, 4);
-        others.extend(tables(EnvKind::Arm, 2));
-        Defaults {
-            angle: ["a2c", "saver", "--faithful saver"]
-                .into_iter()
-                .zip(angle)
-                .collect(),
-            others,
-        }
-    })
-}
-
-fn lookup<'a>(table: &'a toml::Table, path: &str) -> Option<&'a toml::Value> {
-    let mut parts = path.split('.');
-    let mut v = table.get(parts.next()?)?;
-    for p in parts {
-        v = v.as_table()?.get(p)?;
-    }
-    Some(v)
-}
-
-fn shown(v: Option<&toml::Value>) -> String {
-    match v {
-        Some(toml::Value::String(s)) => s.clone(),
-        Some(v) => v.to_string(),
-        None => "none".into(),
-    }
-}
-
-/// `text` followed by the setting's real defaults, from the default configs
-/// themselves: `[default: X]` when every algorithm shares it, else one per algorithm.
-pub fn help(text: &str, path: &str) -> String {
-    let d = defaults();
-    let values: Vec<(&str, String)> = d
-        .angle
-        .iter()
-        .map(|(label, t)| (*label, shown(lookup(t, path))))
-        .collect();
-    let first = &values[0].1;
-    let mut out = if values.iter().all(|(_, v)| v == first) {
-        format!("{text} [default: {first}]")
-    } else if values[1].1 == *first {
-        format!("{text} [default: {first}; --faithful: {}]", values[2].1)
-    } else {
-        let parts: Vec<String> = values.iter().map(|(l, v)| format!("{l} {v}")).collect();
-        format!("{text} [default: {}]", parts.join(", "))
-    };
-    let on_angle = |t: &toml::Table| shown(lookup(t, path));
-    let varies = d
-        .others
-        .iter()
-        .zip(d.angle.iter().cycle())
-        .any(|(o, (_, a))| on_angle(o) != on_angle(a));
-    if varies {
-        out.push_str(" (on angle; select and arm: docs/ALGORITHM.md)");
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -536,19 +456,5 @@ mod tests {
         assert_eq!(s.pretrain.lr, Some(0.25));
         assert_eq!(s.head.log_std_min, Some(-4.6));
         assert_eq!(s.head.log_std_max, Some(f64::NEG_INFINITY));
-    }
-
-    #[test]
-    fn help_shows_each_algorithms_default() {
-        assert_eq!(
-            help("Learning rate", "lr"),
-            "Learning rate [default: a2c 0.0003, saver 0.001, --faithful saver 0.01] \
-             (on angle; select and arm: docs/ALGORITHM.md)"
-        );
-        assert_eq!(help("Discount γ", "gamma"), "Discount γ [default: 0.99]");
-        assert_eq!(
-            help("Bound", "head.mu_bound"),
-            "Bound [default: a2c inf, saver 1.0, --faithful saver inf]"
-        );
     }
 }

@@ -3,105 +3,20 @@
 //! files are its partial form ([`crate::settings`]). Defaults and where they differ from
 //! the paper: docs/ALGORITHM.md.
 
-use crate::env::{EnvKind, EnvSpec};
+mod kinds;
+mod pretrain;
+pub(crate) mod unbounded;
+
+pub use kinds::{Algo, Mode, OptimizerKind, SampleDistribution};
+pub use pretrain::{
+    paper_lr, paper_pretrain_batches, preset_or_angle, PretrainConfig, PRETRAIN_EVAL_BATCHES,
+};
+pub(crate) use unbounded::{inf_is_none, neg_inf_is_none, zero_is_none};
+
+use crate::env::EnvSpec;
 use crate::nets::HeadConfig;
-use crate::optim::OptimizerConfig;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
-
-/// The learning algorithm.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Algo {
-    /// Vector rewards through the frozen PCPN with the QRRL loss.
-    Saver,
-    /// The scalar-reward A2C baseline.
-    A2c,
-}
-
-impl Algo {
-    /// Parses `saver` or `a2c`.
-    pub fn parse(s: &str) -> Result<Self> {
-        <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
-            CoreError::Config(format!(
-                "algo: unknown algorithm {s:?} (expected saver or a2c)"
-            ))
-        })
-    }
-    /// The lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Saver => "saver",
-            Self::A2c => "a2c",
-        }
-    }
-}
-
-/// How the learner forms batches.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Mode {
-    /// One rollout per registered actor at the current version, in actor-id order
-    /// (exact on-policy A2C/SAVER, repeatable bit for bit).
-    Sync,
-    /// An update on every `actors` rollouts whose version lag is at most `max_lag`.
-    Async,
-}
-
-impl Mode {
-    /// The lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Sync => "sync",
-            Self::Async => "async",
-        }
-    }
-}
-
-/// An optimiser with TensorFlow 1's constants (docs/ALGORITHM.md, optimisers).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum OptimizerKind {
-    /// TF1 RMSProp (decay 0.9, ε 1e-10 inside the root, slots start at 1): the paper's.
-    Rmsprop,
-    /// TF1 Adam (β 0.9, 0.999, ε̂ 1e-8).
-    Adam,
-}
-
-impl OptimizerKind {
-    /// Its constants.
-    pub fn tf1(self) -> OptimizerConfig {
-        match self {
-            Self::Rmsprop => OptimizerConfig::RMSPROP_TF1,
-            Self::Adam => OptimizerConfig::ADAM_TF1,
-        }
-    }
-    /// The lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Rmsprop => "rmsprop",
-            Self::Adam => "adam",
-        }
-    }
-}
-
-/// Where PCPN pretraining samples come from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum SampleDistribution {
-    /// The paper's: an observation from the env's reset distribution, μ ~ U(-1, 1),
-    /// σ ~ U(0, 1), one step with a ~ N(μ, σ²).
-    Reset,
-}
-
-impl SampleDistribution {
-    /// The lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Reset => "reset",
-        }
-    }
-}
 
 /// SAVER's loss constants.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -135,118 +50,6 @@ pub struct SaverConfig {
 
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
 pub const MU_RAW_LIMIT: f64 = 2.0;
-
-/// PCPN pretraining settings: everything that decides the PCPN's weights. A PCPN is
-/// stored and found by its env spec and these (the same settings give the same
-/// weights, bit for bit, from every entry point).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PretrainConfig {
-    /// Optimiser.
-    pub optimizer: OptimizerKind,
-    /// Learning rate (paper: 0.1 × the agent's).
-    pub lr: f64,
-    /// Number of fresh batches.
-    pub batches: u64,
-    /// Transitions per batch.
-    pub batch_size: usize,
-    /// K: τ samples per transition.
-    pub quantiles: usize,
-    /// Seed of the weights, the samples and the τ draws (apart from the run's seed, so
-    /// that every run of an env shares one PCPN, as the paper intends).
-    pub seed: u64,
-    /// The sample distribution.
-    pub samples: SampleDistribution,
-}
-
-/// Held-out batches of the pretraining report (fresh samples, fixed τ stream).
-pub const PRETRAIN_EVAL_BATCHES: usize = 16;
-
-/// The paper's learning rate for an env and algorithm (docs/ALGORITHM.md §12).
-pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
-    match (kind, algo) {
-        (EnvKind::Angle, Algo::Saver) => 0.01,
-        (EnvKind::Angle, Algo::A2c) => 0.0003,
-        (EnvKind::Select, Algo::Saver) => 0.01,
-        (EnvKind::Select, Algo::A2c) => 0.0001,
-        (EnvKind::Arm, Algo::Saver) => 0.003,
-        (EnvKind::Arm, Algo::A2c) => 0.0003,
-    }
-}
-
-/// The preset whose paper settings an env takes: its own, or angle's for a custom env
-/// (the paper has none for it).
-pub fn preset_or_angle(env: &EnvSpec) -> EnvKind {
-    env.kind().unwrap_or(EnvKind::Angle)
-}
-
-/// The paper's number of pretraining batches for an env.
-pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
-    match kind {
-        EnvKind::Angle => 100_000,
-        EnvKind::Select | EnvKind::Arm => 10_000,
-    }
-}
-
-impl PretrainConfig {
-    /// The paper's: TF1 RMSProp at 0.1 × the paper's SAVER rate, the paper's number of
-    /// batches of 128, K = 32.
-    pub fn paper(kind: EnvKind) -> Self {
-        Self {
-            optimizer: OptimizerKind::Rmsprop,
-            lr: 0.1 * paper_lr(kind, Algo::Saver),
-            batches: paper_pretrain_batches(kind),
-            batch_size: 128,
-            quantiles: 32,
-            seed: 0,
-            samples: SampleDistribution::Reset,
-        }
-    }
-
-    /// The default: the paper's but 5,000 batches (the held-out loss settles by
-    /// ~1,000; results/README.md). The committed angle-d4 PCPN was made with these.
-    pub fn recommended(kind: EnvKind) -> Self {
-        Self {
-            batches: RECOMMENDED_PRETRAIN_BATCHES,
-            ..Self::paper(kind)
-        }
-    }
-
-    /// Checks every field; the message names the field.
-    pub fn validate(&self) -> Result<()> {
-        let bad =
-            |field: &str, why: String| Err(CoreError::Config(format!("pretrain.{field}: {why}")));
-        if !(self.lr.is_finite() && self.lr > 0.0 && self.lr < 10.0) {
-            return bad(
-                "lr",
-                format!("{} is not a learning rate in (0, 10)", self.lr),
-            );
-        }
-        if !(1..=100_000_000).contains(&self.batches) {
-            return bad("batches", format!("{} is not in 1..=1e8", self.batches));
-        }
-        if !(1..=65_536).contains(&self.batch_size) {
-            return bad(
-                "batch_size",
-                format!("{} is not in 1..=65536", self.batch_size),
-            );
-        }
-        if !(1..=1024).contains(&self.quantiles) {
-            return bad(
-                "quantiles",
-                format!("{} is not in 1..=1024", self.quantiles),
-            );
-        }
-        Ok(())
-    }
-
-    /// The identity of the PCPN these settings make for `spec`: a short hash of both,
-    /// for file names (the full settings are in the file's metadata).
-    pub fn key(&self, spec: &EnvSpec) -> String {
-        let json = serde_json::to_vec(&(spec, self)).unwrap_or_default();
-        saver_proto::sha256_hex(&json)[..12].to_string()
-    }
-}
 
 /// Everything that defines a run. Its TOML form is the run folder's config.toml.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -495,54 +298,10 @@ impl RunConfig {
     }
 }
 
-/// `Option<f64>` written as a number where `None` is `inf` (TOML `inf`, JSON `null`).
-pub(crate) mod inf_is_none {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    /// `None` → inf.
-    pub fn serialize<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_f64(v.unwrap_or(f64::INFINITY))
-    }
-
-    /// inf, -inf or null → `None`.
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
-        Ok(Option::<f64>::deserialize(d)?.filter(|v| v.is_finite() || v.is_nan()))
-    }
-}
-
-/// `Option<f64>` written as a number where `None` is `-inf` (a lower bound).
-pub(crate) mod neg_inf_is_none {
-    use serde::{Deserializer, Serializer};
-
-    /// `None` → -inf.
-    pub fn serialize<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_f64(v.unwrap_or(f64::NEG_INFINITY))
-    }
-
-    /// inf, -inf or null → `None`.
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
-        super::inf_is_none::deserialize(d)
-    }
-}
-
-/// `Option<f64>` written as a number where `None` is 0.
-pub(crate) mod zero_is_none {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    /// `None` → 0.
-    pub fn serialize<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_f64(v.unwrap_or(0.0))
-    }
-
-    /// 0 or null → `None`.
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
-        Ok(Option::<f64>::deserialize(d)?.filter(|&v| v != 0.0))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::EnvKind;
 
     #[test]
     fn paper_defaults_validate_and_bad_fields_are_named() {
@@ -585,33 +344,5 @@ mod tests {
             let json: RunConfig = serde_json::from_slice(&serde_json::to_vec(&c).unwrap()).unwrap();
             assert_eq!(json, c);
         }
-    }
-
-    /// The same env and settings give the same key; any setting changes it.
-    #[test]
-    fn pretrain_key_covers_every_setting() {
-        let env = EnvSpec::new(EnvKind::Angle, 4).unwrap();
-        let p = PretrainConfig::recommended(EnvKind::Angle);
-        let k = p.key(&env);
-        assert_eq!(k.len(), 12);
-        assert_eq!(k, PretrainConfig::recommended(EnvKind::Angle).key(&env));
-        let others = [
-            PretrainConfig { lr: 0.002, ..p },
-            PretrainConfig { batches: 5001, ..p },
-            PretrainConfig { seed: 1, ..p },
-            PretrainConfig {
-                optimizer: OptimizerKind::Adam,
-                ..p
-            },
-            PretrainConfig { quantiles: 16, ..p },
-            PretrainConfig {
-                batch_size: 64,
-                ..p
-            },
-        ];
-        for o in others {
-            assert_ne!(o.key(&env), k, "{o:?}");
-        }
-        assert_ne!(p.key(&EnvSpec::new(EnvKind::Angle, 2).unwrap()), k);
     }
 }

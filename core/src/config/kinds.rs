@@ -1,0 +1,100 @@
+//! The enumerations of a run's config: algorithm, batching mode, optimiser and the
+//! pretraining sample distribution (clap's ValueEnum, so `--help` lists them).
+
+use crate::optim::OptimizerConfig;
+use crate::{CoreError, Result};
+use serde::{Deserialize, Serialize};
+
+/// The learning algorithm.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Algo {
+    /// Vector rewards through the frozen PCPN with the QRRL loss.
+    Saver,
+    /// The scalar-reward A2C baseline.
+    A2c,
+}
+
+impl Algo {
+    /// Parses `saver` or `a2c`.
+    pub fn parse(s: &str) -> Result<Self> {
+        <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            CoreError::Config(format!(
+                "algo: unknown algorithm {s:?} (expected saver or a2c)"
+            ))
+        })
+    }
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Saver => "saver",
+            Self::A2c => "a2c",
+        }
+    }
+}
+
+/// How the learner forms batches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// One rollout per registered actor at the current version, in actor-id order
+    /// (exact on-policy A2C/SAVER, repeatable bit for bit).
+    Sync,
+    /// An update on every `actors` rollouts whose version lag is at most `max_lag`.
+    Async,
+}
+
+impl Mode {
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Sync => "sync",
+            Self::Async => "async",
+        }
+    }
+}
+
+/// An optimiser with TensorFlow 1's constants (docs/ALGORITHM.md, optimisers).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum OptimizerKind {
+    /// TF1 RMSProp (decay 0.9, ε 1e-10 inside the root, slots start at 1): the paper's.
+    Rmsprop,
+    /// TF1 Adam (β 0.9, 0.999, ε̂ 1e-8).
+    Adam,
+}
+
+impl OptimizerKind {
+    /// Its constants.
+    pub fn tf1(self) -> OptimizerConfig {
+        match self {
+            Self::Rmsprop => OptimizerConfig::RMSPROP_TF1,
+            Self::Adam => OptimizerConfig::ADAM_TF1,
+        }
+    }
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Rmsprop => "rmsprop",
+            Self::Adam => "adam",
+        }
+    }
+}
+
+/// Where PCPN pretraining samples come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum SampleDistribution {
+    /// The paper's: an observation from the env's reset distribution, μ ~ U(-1, 1),
+    /// σ ~ U(0, 1), one step with a ~ N(μ, σ²).
+    Reset,
+}
+
+impl SampleDistribution {
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Reset => "reset",
+        }
+    }
+}
