@@ -177,6 +177,27 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// `saver train | head -0`: the reader is gone before the run prints; the run still
+/// finishes and writes its checkpoint, and nothing panics.
+#[test]
+fn a_closed_stdout_ends_the_output_not_the_run() {
+    let dir = temp_dir("closed-pipe");
+    let run = dir.join("run");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_saver"))
+        .args(["train", "--steps", "2048", "--out", run.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(run.join("checkpoint.safetensors").exists());
+    std::fs::remove_dir_all(dir).ok();
+}
+
 #[test]
 fn pcpn_is_pretrained_once_reused_and_refused_for_another_env() {
     let dir = temp_dir("pcpn");

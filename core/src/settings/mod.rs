@@ -257,6 +257,10 @@ impl RunSettings {
             }
         }
         let mut top = table_of(&file)?;
+        if self.mode == Some(Mode::Sync) && self.max_lag.is_none() {
+            // A file of an async run switched to sync by flag: its lag no longer applies.
+            top.remove("max_lag");
+        }
         overlay(&mut top, table_of(self)?);
         let merged: RunSettings = toml::Value::Table(top.clone())
             .try_into()
@@ -395,10 +399,20 @@ mod tests {
             mode: Some(Mode::Async),
             ..Default::default()
         };
-        assert_eq!(
-            async_default.resolve().unwrap().max_lag,
-            Some(DEFAULT_MAX_LAG)
-        );
+        let async_run = async_default.resolve().unwrap();
+        assert_eq!(async_run.max_lag, Some(DEFAULT_MAX_LAG));
+        // An async run's file with --mode sync: a sync run, its lag dropped.
+        let p = temp("async.toml");
+        std::fs::write(&p, async_run.to_toml()).unwrap();
+        let sync = RunSettings {
+            config: Some(p.clone()),
+            mode: Some(Mode::Sync),
+            ..Default::default()
+        }
+        .resolve()
+        .unwrap();
+        assert_eq!((sync.mode, sync.max_lag), (Mode::Sync, None));
+        std::fs::remove_file(p).ok();
         let p = temp("unknown.toml");
         std::fs::write(&p, "[saver]\nquantile = 3\n").unwrap();
         let e = RunSettings::read(&p).unwrap_err().to_string();
