@@ -3,7 +3,7 @@
 //! measures the updates against the machine's matmul peak; `saver plot` draws curves.
 
 use clap::{Parser, Subcommand};
-use saver_run::{bench, clients, config, plot, pretrain, services, train};
+use saver_run::{bench, clients, config, eval, plot, pretrain, services, train};
 use std::process::ExitCode;
 
 /// SAVER: state aligned vector rewards with quantile regression RL.
@@ -24,6 +24,8 @@ enum Command {
     Pretrain(pretrain::PretrainArgs),
     /// Time the updates and a rollout-plus-update cycle against the matmul peak.
     Bench(bench::BenchArgs),
+    /// Run a trained policy on fresh episodes: success rate, lengths, returns, a picture.
+    Eval(eval::EvalArgs),
     /// Draw learning curves of one or more run folders into a PNG.
     Plot(plot::PlotArgs),
     /// Serve the Learner gRPC service: batches rollouts from actors, updates, publishes.
@@ -40,11 +42,16 @@ enum Command {
     Healthcheck(clients::HealthArgs),
 }
 
+/// Log filter unless RUST_LOG says otherwise.
+const DEFAULT_LOG: &str = "warn,saver_learner=info,saver_pcpn_trainer=info,saver_run=info";
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                // Warnings, and what the services do (actors joining and leaving,
+                // pretraining progress); RUST_LOG overrides.
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG)),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -54,6 +61,7 @@ fn main() -> ExitCode {
         Command::Train(a) => train::run(a),
         Command::Pretrain(a) => pretrain::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Eval(a) => eval::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Learner(a) => services::learner(a),
         Command::Actor(a) => services::actor(a),

@@ -24,6 +24,8 @@ pub trait ActingPolicy: Send {
         action: &mut Vec<f32>,
         payload: &mut Vec<f32>,
     );
+    /// The policy's most likely action for `obs` (evaluation without exploration).
+    fn act_deterministic(&mut self, obs: &[f32], action: &mut Vec<f32>);
 }
 
 /// A kind of behaviour policy: what it records per step, what values those may take,
@@ -46,6 +48,9 @@ pub trait PolicyFamily: Send + Sync + std::fmt::Debug {
     fn acting(&self, weights: Arc<PolicyWeights>) -> Result<Box<dyn ActingPolicy>>;
     /// The env layout it acts in.
     fn layout(&self) -> EnvLayout;
+    /// How to compute an action from the published weights, in words a client in any
+    /// language can follow (tensor names, shapes, activations, the sampling).
+    fn architecture(&self) -> String;
 }
 
 /// The family a peer names on the wire, in `layout`, with its `params`.

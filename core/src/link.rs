@@ -7,6 +7,7 @@ use crate::config::{Algo, Mode, RunConfig};
 use crate::env::EnvSpec;
 use crate::rollout::Rollout;
 use saver_proto::NamedTensor;
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -51,6 +52,40 @@ pub struct ActorSettings {
     pub env: EnvSpec,
     /// The behaviour policy: how to act and what each step records.
     pub policy: Arc<dyn PolicyFamily>,
+}
+
+/// Format tag of a self-describing policy weights file.
+pub const POLICY_FORMAT: &str = "saver-policy/1";
+
+/// What a weights file of `config`'s run says about itself (its safetensors
+/// metadata, besides the version): enough for a client in any language to act with
+/// it — the env (spec with layout and bounds), the algorithm, the policy family with
+/// its parameters and architecture, and the PCPN the run used.
+pub fn weights_metadata(config: &RunConfig) -> HashMap<String, String> {
+    let s = ActorSettings::of(config);
+    let mut m = HashMap::from([
+        ("format".to_string(), POLICY_FORMAT.to_string()),
+        ("algo".to_string(), s.algo.name().to_string()),
+        ("env".to_string(), s.env.to_string()),
+        ("env_spec".to_string(), json(&s.env)),
+        ("layout".to_string(), json(&s.env.layout())),
+        ("policy_family".to_string(), s.policy.name().to_string()),
+        ("policy_params".to_string(), json(&s.policy.params())),
+        ("payload".to_string(), s.policy.payload_layout()),
+        ("architecture".to_string(), s.policy.architecture()),
+        (
+            "max_episode_steps".to_string(),
+            s.max_episode_steps.to_string(),
+        ),
+    ]);
+    if let Some(sha) = &config.pcpn_sha256 {
+        m.insert("pcpn_sha256".to_string(), sha.clone());
+    }
+    m
+}
+
+fn json<T: serde::Serialize>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_default()
 }
 
 impl ActorSettings {

@@ -26,6 +26,8 @@ pub mod streams {
     pub const PRETRAIN: u64 = 3;
     /// Held-out samples of the PCPN evaluation.
     pub const HELD_OUT: u64 = 4;
+    /// `saver eval`'s episodes.
+    pub const EVAL: u64 = 5;
     /// Actor `i` uses stream `ACTOR_BASE + i`.
     pub const ACTOR_BASE: u64 = 1_000;
 }

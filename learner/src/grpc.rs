@@ -31,9 +31,14 @@ pub struct EncodedWeights {
     pub file: Option<String>,
 }
 
-/// Encodes weights as safetensors with their version in the metadata.
-pub fn encode_weights(w: &PolicyWeights) -> Result<EncodedWeights, saver_proto::CodecError> {
-    let meta = HashMap::from([("version".to_string(), w.version.to_string())]);
+/// Encodes weights as safetensors with `about` (what they are:
+/// [`saver_core::link::weights_metadata`]) and their version in the metadata.
+pub fn encode_weights(
+    w: &PolicyWeights,
+    about: &HashMap<String, String>,
+) -> Result<EncodedWeights, saver_proto::CodecError> {
+    let mut meta = about.clone();
+    meta.insert("version".to_string(), w.version.to_string());
     Ok(EncodedWeights {
         version: w.version,
         bytes: Bytes::from(saver_proto::encode(&w.tensors, &meta)?),
@@ -42,8 +47,12 @@ pub fn encode_weights(w: &PolicyWeights) -> Result<EncodedWeights, saver_proto::
 }
 
 /// Encodes weights and, with a weights directory, writes them there too.
-fn publishable(w: &PolicyWeights, dir: &mut Option<WeightsDir>) -> Option<EncodedWeights> {
-    let mut e = match encode_weights(w) {
+fn publishable(
+    w: &PolicyWeights,
+    about: &HashMap<String, String>,
+    dir: &mut Option<WeightsDir>,
+) -> Option<EncodedWeights> {
+    let mut e = match encode_weights(w, about) {
         Ok(e) => e,
         Err(e) => {
             tracing::error!("encoding weights v{}: {e}", w.version);
@@ -191,7 +200,8 @@ impl LearnerService {
         let shared = dir
             .as_ref()
             .map(|d| (d.path().display().to_string(), d.id().to_string()));
-        let first = publishable(&hub.latest(), &mut dir).unwrap_or(EncodedWeights {
+        let about = saver_core::link::weights_metadata(hub.config());
+        let first = publishable(&hub.latest(), &about, &mut dir).unwrap_or(EncodedWeights {
             version: 0,
             bytes: Bytes::new(),
             file: None,
@@ -203,7 +213,7 @@ impl LearnerService {
             .spawn(move || {
                 let mut next = 1;
                 while let Ok(w) = bridge_hub.wait_weights(next) {
-                    if let Some(e) = publishable(&w, &mut dir) {
+                    if let Some(e) = publishable(&w, &about, &mut dir) {
                         if tx.send(e).is_err() {
                             break;
                         }
@@ -214,7 +224,7 @@ impl LearnerService {
                 // This thread is the only sender, so no one else can have sent it.
                 let last = bridge_hub.latest();
                 if last.version > tx.borrow().version {
-                    if let Some(e) = publishable(&last, &mut dir) {
+                    if let Some(e) = publishable(&last, &about, &mut dir) {
                         let _ = tx.send(e);
                     }
                 }

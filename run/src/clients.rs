@@ -89,18 +89,79 @@ pub struct StatusArgs {
     /// The learner.
     #[command(flatten)]
     pub addr: LearnerAddr,
+    /// One JSON object per answer (mean_ep_len_100 null before the first episode).
+    #[arg(long)]
+    pub json: bool,
+    /// Ask again every SECONDS until the run is finished (or Ctrl-C); a learner that
+    /// does not answer yet (still starting, fetching or pretraining its PCPN) is said
+    /// so and asked again.
+    #[arg(long, value_name = "SECONDS", value_parser = crate::services::positive_secs)]
+    pub watch: Option<f64>,
 }
 
-/// Runs `saver status`: one `key value` line per field of the learner's Status.
+/// Runs `saver status`: one `key value` line per field of the learner's Status (or a
+/// JSON object with `--json`), once or, with `--watch`, until the run is finished.
 pub fn status(args: StatusArgs) -> Result<()> {
-    let s = runtime()?.block_on(async {
-        let mut client = args.addr.connect().await?;
-        let r = client
-            .status(pb::StatusRequest {})
-            .await
-            .map_err(status_error)?;
-        anyhow::Ok(r.into_inner())
-    })?;
+    let rt = runtime()?;
+    let ask = || {
+        rt.block_on(async {
+            let mut client = args.addr.connect().await?;
+            let r = client
+                .status(pb::StatusRequest {})
+                .await
+                .map_err(status_error)?;
+            anyhow::Ok(r.into_inner())
+        })
+    };
+    let Some(every) = args.watch else {
+        let s = ask().map_err(|e| not_answering(&args.addr.learner, e))?;
+        print_status(&s, args.json);
+        return Ok(());
+    };
+    loop {
+        match ask() {
+            Ok(s) => {
+                print_status(&s, args.json);
+                if s.finished {
+                    return Ok(());
+                }
+            }
+            Err(e) => eprintln!("{:#}", not_answering(&args.addr.learner, e)),
+        }
+        std::thread::sleep(std::time::Duration::from_secs_f64(every));
+    }
+}
+
+/// A failed Status call, with what it may mean.
+fn not_answering(url: &str, e: anyhow::Error) -> anyhow::Error {
+    e.context(format!(
+        "no Status answer from the learner at {url} (a learner that is starting serves \
+         once its PCPN is in hand, which may mean minutes of pretraining; its log says \
+         what it waits for)"
+    ))
+}
+
+fn print_status(s: &pb::StatusReply, json: bool) {
+    if json {
+        let finite = |v: f64| v.is_finite().then_some(v);
+        let j = serde_json::json!({
+            "algo": s.algo,
+            "env": s.env,
+            "mode": s.mode,
+            "version": s.version,
+            "steps": s.steps,
+            "actors": s.actors,
+            "pending": s.pending,
+            "accepted": s.accepted,
+            "rejected": s.rejected,
+            "stale_dropped": s.stale_dropped,
+            "skipped_updates": s.skipped_updates,
+            "mean_ep_len_100": finite(s.mean_ep_len_100),
+            "finished": s.finished,
+        });
+        crate::out!("{j}");
+        return;
+    }
     crate::out!("algo {}", s.algo);
     crate::out!("env {}", s.env);
     crate::out!("mode {}", s.mode);
@@ -114,7 +175,6 @@ pub fn status(args: StatusArgs) -> Result<()> {
     crate::out!("skipped_updates {}", s.skipped_updates);
     crate::out!("mean_ep_len_100 {}", s.mean_ep_len_100);
     crate::out!("finished {}", s.finished);
-    Ok(())
 }
 
 /// `saver healthcheck` flags.

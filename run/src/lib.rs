@@ -8,6 +8,7 @@ pub mod bench;
 pub mod bench_services;
 pub mod clients;
 pub mod config;
+pub mod eval;
 pub mod output;
 pub mod plot;
 pub mod pretrain;

@@ -48,7 +48,7 @@ pub fn read_curve(run: &Path) -> Result<Vec<(f64, f64)>> {
     Ok(points)
 }
 
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         let _ = plotters::style::register_font(

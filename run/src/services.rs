@@ -57,6 +57,23 @@ async fn bind(addr: SocketAddr) -> Result<tokio::net::TcpListener> {
         .with_context(|| format!("listening on {addr}"))
 }
 
+/// `work`, saying every 30 s that it still waits for `what`.
+async fn waiting<T>(work: impl std::future::Future<Output = T>, what: &str) -> T {
+    let start = std::time::Instant::now();
+    tokio::pin!(work);
+    let mut tick = tokio::time::interval(Duration::from_secs(30));
+    tick.tick().await;
+    loop {
+        tokio::select! {
+            out = &mut work => return out,
+            _ = tick.tick() => eprintln!(
+                "still waiting for {what} ({:.0} s)",
+                start.elapsed().as_secs_f64()
+            ),
+        }
+    }
+}
+
 /// Resolves on Ctrl-C or SIGTERM.
 async fn terminated() {
     #[cfg(unix)]
@@ -134,7 +151,7 @@ fn weights_dir(arg: Option<&str>) -> Result<Option<WeightsDir>> {
     Ok(Some(dir))
 }
 
-fn positive_secs(s: &str) -> Result<f64, String> {
+pub(crate) fn positive_secs(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v < 1e6 => Ok(v),
         _ => Err(format!("{s:?} is not a number of seconds in (0, 1e6)")),
@@ -156,8 +173,16 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     let rt = runtime()?;
     let pcpn = match (config.algo, args.pcpn.as_deref()) {
         (Algo::Saver, Some(url)) if url.starts_with("http://") || url.starts_with("https://") => {
+            eprintln!(
+                "waiting for the PCPN of {} from {url} (the store pretrains it first if it \
+                 has none: {} batches); serving starts once it is in hand",
+                config.env, config.pretrain.batches
+            );
             let bytes = rt
-                .block_on(fetch(url, &config.env, &config.pretrain, &pcpn_access))
+                .block_on(waiting(
+                    fetch(url, &config.env, &config.pretrain, &pcpn_access),
+                    &format!("the PCPN from {url}"),
+                ))
                 .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
             let shown = PathBuf::from(format!("{url} ({})", config.env));
             let (pcpn, info) = load_pcpn_bytes(&bytes, &shown, &config.env, &saver_core::device())

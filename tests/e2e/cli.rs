@@ -155,6 +155,35 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
         config.contains("seed = 0") && config.contains("algo = \"a2c\""),
         "{config}"
     );
+    // `saver eval` runs the trained policy: 20 episodes, each one ending in success or
+    // at the step limit, and a picture.
+    let png = dir.join("paths.png");
+    let o = saver(&[
+        "eval",
+        run.to_str().unwrap(),
+        "--episodes",
+        "20",
+        "--json",
+        "--trajectory",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (j["episodes"].as_u64(), j["env"].as_str()),
+        (Some(20), Some("angle-d4"))
+    );
+    let rate = j["success_rate"].as_f64().unwrap();
+    let (p10, max) = (
+        j["length_percentiles"]["p10"].as_u64().unwrap(),
+        j["length_percentiles"]["max"].as_u64().unwrap(),
+    );
+    assert!(
+        (0.0..=1.0).contains(&rate) && 1 <= p10 && p10 <= max && max <= 1000,
+        "{j}"
+    );
+    assert_eq!(j["final_distance"].as_array().unwrap().len(), 4);
+    assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
     // ... and repeats the run bit for bit in another folder.
     let again = dir.join("again");
     let cfg = run.join("config.toml");

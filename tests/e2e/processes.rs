@@ -114,6 +114,21 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
         text.starts_with("version 20") && text.contains("agent.mu.w"),
         "{text}"
     );
+    // `status --watch` asks until the run is finished, then exits; each answer is
+    // one JSON object.
+    let watched = saver(&["status", "--watch", "0.1", "--json", "--learner", &url]);
+    assert!(watched.status.success());
+    let last: serde_json::Value = serde_json::from_str(
+        String::from_utf8_lossy(&watched.stdout)
+            .lines()
+            .last()
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        (last["finished"].as_bool(), last["version"].as_u64()),
+        (Some(true), Some(20))
+    );
     drop(actors);
 
     // The embedded run with the same PCPN file, seed and actor count.
@@ -127,6 +142,40 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
 
     let (remote, meta) = saver_proto::decode(&std::fs::read(&weights).unwrap()).unwrap();
     assert_eq!(meta["version"], "20");
+    // The weights say what they are: env, algorithm, policy and the PCPN behind them.
+    let pcpn_info = saver_pcpn_trainer::load_pcpn(
+        std::path::Path::new(&pcpn),
+        &saver_core::env::EnvSpec::new(saver_core::env::EnvKind::Angle, 2).unwrap(),
+        &candle_core::Device::Cpu,
+    )
+    .unwrap()
+    .1;
+    assert_eq!(meta["format"], "saver-policy/1");
+    assert_eq!(
+        (meta["algo"].as_str(), meta["env"].as_str()),
+        ("saver", "angle-d2")
+    );
+    assert_eq!(meta["pcpn_sha256"], pcpn_info.weights_sha256);
+    assert_eq!(meta["policy_family"], "gaussian-mlp");
+    let params: std::collections::BTreeMap<String, f64> =
+        serde_json::from_str(&meta["policy_params"]).unwrap();
+    assert_eq!(params["mu_bound"], 1.0);
+    assert!(meta["architecture"].contains("agent.mu.w"), "{meta:?}");
+    // The file alone is enough to evaluate the policy.
+    let o = saver(&[
+        "eval",
+        &weights,
+        "--episodes",
+        "3",
+        "--deterministic",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (j["env"].as_str(), j["version"].as_u64()),
+        (Some("angle-d2"), Some(20))
+    );
     let (local, _) =
         saver_proto::decode(&std::fs::read(dir.join("embedded/checkpoint.safetensors")).unwrap())
             .unwrap();
@@ -134,14 +183,15 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
     std::fs::remove_dir_all(dir).ok();
 }
 
-/// `saver status` of the learner at `url` as (key, value) pairs.
+/// `saver status --json` of the learner at `url` as (key, value) pairs.
 fn status(url: &str) -> Option<std::collections::HashMap<String, String>> {
-    let out = saver(&["status", "--learner", url]);
+    let out = saver(&["status", "--json", "--learner", url]);
     out.status.success().then(|| {
-        String::from_utf8_lossy(&out.stdout)
-            .lines()
-            .filter_map(|l| l.split_once(' '))
-            .map(|(k, v)| (k.to_string(), v.to_string()))
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        v.as_object()
+            .unwrap()
+            .iter()
+            .map(|(k, v)| (k.clone(), v.to_string()))
             .collect()
     })
 }

@@ -74,6 +74,10 @@ impl Env for Angle {
         self.steps
     }
 
+    fn goal(&self) -> Vec<f32> {
+        self.goal.clone()
+    }
+
     fn snapshot(&self) -> Vec<f32> {
         super::snapshot_of(&self.pos, &self.goal, self.steps)
     }

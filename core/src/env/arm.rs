@@ -100,6 +100,10 @@ impl Env for Arm {
         self.steps
     }
 
+    fn goal(&self) -> Vec<f32> {
+        self.goal.to_vec()
+    }
+
     fn snapshot(&self) -> Vec<f32> {
         super::snapshot_of(&self.angles, &self.goal, self.steps)
     }

@@ -53,6 +53,8 @@ pub trait Env: Send {
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
     /// Steps taken in the current episode.
     fn steps(&self) -> u32;
+    /// Where the state-aligned part should go (the goal g of the vector reward).
+    fn goal(&self) -> Vec<f32>;
     /// The whole state (position or angles, goal, step count) as numbers, for
     /// checkpoints of a run's actors.
     fn snapshot(&self) -> Vec<f32>;

@@ -188,6 +188,23 @@ impl PolicyFamily for Gaussian {
     fn layout(&self) -> EnvLayout {
         self.layout
     }
+
+    fn architecture(&self) -> String {
+        let l = &self.layout;
+        format!(
+            "h0 = obs[{o}]; h(i+1) = relu(h(i) @ agent.l(i).w + agent.l(i).b) for i = 0, 1, 2 \
+             (widths {t:?}, w stored [in, out]); raw = h3 @ agent.mu.w + agent.mu.b [{m}]; \
+             mu = mu_bound * tanh(raw) if mu_bound is finite, else raw; \
+             log_std = clamp(agent.log_std [{c}], log_std_min, log_std_max); \
+             action[j] = mu[j] + exp(log_std[j]) * N(0, 1) for j < {c}; then, if {ch} > 0, \
+             a one-hot of choice ~ softmax(mu[{c}..{m}]); the env clips actions to [-1, 1]",
+            o = l.obs_dim,
+            t = TRUNK,
+            m = l.mu_dim(),
+            c = l.continuous,
+            ch = l.choices,
+        )
+    }
 }
 
 /// Index of one dense layer's weight and bias in the shared weights.
@@ -331,6 +348,20 @@ impl ActingPolicy for Policy {
         payload: &mut Vec<f32>,
     ) {
         self.sample(obs, rng, action, payload);
+    }
+
+    /// μ for the continuous dims and a one-hot of the largest logit.
+    fn act_deterministic(&mut self, obs: &[f32], action: &mut Vec<f32>) {
+        self.mean(obs, action);
+        let c = self.layout.continuous;
+        if self.layout.choices > 0 {
+            let best = (c..action.len())
+                .max_by(|&a, &b| action[a].total_cmp(&action[b]))
+                .unwrap_or(c);
+            for (i, a) in action.iter_mut().enumerate().skip(c) {
+                *a = if i == best { 1.0 } else { 0.0 };
+            }
+        }
     }
 }
 
