@@ -12,6 +12,7 @@ mod inproc;
 pub mod ledger;
 pub mod metrics;
 pub mod size_limit;
+pub mod tensorboard;
 pub mod trainer;
 pub mod warn;
 

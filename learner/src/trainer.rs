@@ -141,6 +141,8 @@ impl Trainer {
         let resumed = c != Counters::default();
         let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names(), resumed)
             .map_err(|e| io("creating metrics.csv", e))?;
+        let mut events = crate::tensorboard::EventWriter::create(run_dir)
+            .map_err(|e| io("creating the TensorBoard event file", e))?;
         let config = self.hub.config().clone();
         let wait = self
             .hub
@@ -226,6 +228,10 @@ impl Trainer {
                 // The row before the version: a resumed run learns from metrics.csv
                 // the newest version any client can have seen.
                 csv.write(&row).map_err(|e| io("writing metrics.csv", e))?;
+                let scalars = crate::tensorboard::scalars(&row, self.algo.stat_names(), &episodes);
+                events
+                    .write(row.steps, &scalars)
+                    .map_err(|e| io("writing the TensorBoard events", e))?;
                 if let Some(tx) = &opts.rows {
                     let _ = tx.send(row);
                 }
