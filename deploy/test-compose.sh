@@ -24,6 +24,7 @@ project=saver-test-$$
 export SAVER_IMAGE=saver:test-$$
 export SAVER_TOKEN=compose-test-$RANDOM$RANDOM
 export SAVER_PORT=${SAVER_TEST_PORT:-$((40000 + $$ % 20000))}
+export SAVER_METRICS_PORT=$((SAVER_PORT + 1)) SAVER_PCPN_METRICS_PORT=$((SAVER_PORT + 2))
 export SAVER_BIND=127.0.0.1 SAVER_ACTORS=16 SAVER_ALGO=a2c SAVER_STEPS=100000000
 compose() { "${dc[@]}" -p "$project" -f deploy/compose.yaml "$@"; }
 bin=target/x86_64-unknown-linux-gnu/release/saver
@@ -61,4 +62,14 @@ n=$(compose logs actor 2>/dev/null | grep -c "reading weights from the learner's
 echo "   $n actor registrations read the weights from the shared volume"
 "$bin" weights --learner "$url" --out "$tmp/weights.safetensors"
 [ -s "$tmp/weights.safetensors" ] || { echo "error: no weights written" >&2; exit 1; }
+# Prometheus, as a scraper sees it from the host (bash's /dev/tcp: no curl needed).
+scrape() {
+  exec 3<>"/dev/tcp/127.0.0.1/$1"
+  printf 'GET /metrics HTTP/1.1\r\nHost: saver\r\n\r\n' >&3
+  cat <&3
+  exec 3<&-
+}
+streaming=$(scrape "$SAVER_METRICS_PORT" | awk '$1 == "saver_actors_streaming" { print $2 }')
+[ "$streaming" = 16 ] || { echo "error: metrics say ${streaming:-no} actors streaming, not 16" >&2; exit 1; }
+echo "   Prometheus metrics at 127.0.0.1:$SAVER_METRICS_PORT: 16 actors streaming"
 echo "== compose test passed"

@@ -213,7 +213,11 @@ impl LearnerService {
             .spawn(move || {
                 let mut next = 1;
                 while let Ok(w) = bridge_hub.wait_weights(next) {
-                    if let Some(e) = publishable(&w, &about, &mut dir) {
+                    let start = std::time::Instant::now();
+                    let published = publishable(&w, &about, &mut dir);
+                    ::metrics::histogram!("saver_weights_broadcast_seconds")
+                        .record(start.elapsed().as_secs_f64());
+                    if let Some(e) = published {
                         if tx.send(e).is_err() {
                             break;
                         }
@@ -337,7 +341,11 @@ impl Learner for LearnerService {
                         // with the status that says so (counted and logged); a client
                         // that went away just ends it.
                         if let Some(s) = inbound_error(&status) {
-                            hub.refused(owner.map(|o| o.0), &s);
+                            let code = match s.code() {
+                                tonic::Code::ResourceExhausted => "resource_exhausted",
+                                _ => "invalid_argument",
+                            };
+                            hub.refused(owner.map(|o| o.0), code, &s);
                             let _ = tx.send(Err(s)).await;
                         } else {
                             tracing::debug!("rollout stream ended: {status}");
@@ -370,7 +378,7 @@ impl Learner for LearnerService {
                     Ok(r) => submit(&hub, r).await,
                     Err(e) => {
                         if !matches!(e, LinkError::Closed(_) | LinkError::Finished(_)) {
-                            hub.refused(owner.map(|o| o.0), &e);
+                            hub.refused(owner.map(|o| o.0), crate::hub::reason(&e), &e);
                         }
                         Err(e)
                     }

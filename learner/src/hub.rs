@@ -93,6 +93,16 @@ pub struct Hub {
     pub stats: HubStats,
 }
 
+/// The reason label of a refusal (its google.rpc code, lower case).
+pub fn reason(e: &LinkError) -> &'static str {
+    match e {
+        LinkError::Rejected(_) => "invalid_argument",
+        LinkError::Mismatch(_) => "failed_precondition",
+        LinkError::TooLarge(_) => "resource_exhausted",
+        LinkError::Closed(_) | LinkError::Finished(_) => "unavailable",
+    }
+}
+
 /// How long a sync round waits for a registered actor unless told otherwise.
 pub const DEFAULT_ROUND_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -402,7 +412,7 @@ impl Hub {
             Err(e) => {
                 // A closed learner is not a refusal of the rollout: not counted or logged.
                 if !matches!(e, LinkError::Closed(_) | LinkError::Finished(_)) {
-                    self.refused(Some(rollout.actor_id), &e);
+                    self.refused(Some(rollout.actor_id), reason(&e), &e);
                 }
                 return Err(e);
             }
@@ -415,6 +425,7 @@ impl Hub {
         match self.queue.try_send(rollout) {
             Ok(()) => {
                 self.stats.accepted.fetch_add(1, Ordering::Relaxed);
+                ::metrics::counter!("saver_rollouts_accepted_total").increment(1);
                 if let Some(a) = self.lock().actors.get_mut(&id) {
                     a.last_seq = Some(seq);
                     a.ledger = ledger;
@@ -430,8 +441,9 @@ impl Hub {
 
     /// Counts a refused rollout (or stream: `actor` when it named one) and logs it,
     /// a few lines at a time.
-    pub fn refused(&self, actor: Option<u32>, why: &dyn std::fmt::Display) {
+    pub fn refused(&self, actor: Option<u32>, reason: &'static str, why: &dyn std::fmt::Display) {
         self.stats.rejected.fetch_add(1, Ordering::Relaxed);
+        ::metrics::counter!("saver_rollouts_rejected_total", "reason" => reason).increment(1);
         self.refusals.warn(|| match actor {
             Some(id) => format!("rollout of actor {id} refused: {why}"),
             None => format!("rollout refused: {why}"),

@@ -95,6 +95,24 @@ impl EpisodeWindow {
     }
 }
 
+/// Sets the Prometheus gauges of one update (`scalars`: the update's TensorBoard
+/// scalars) and of the hub (actors streaming and waiting, rollouts accepted and
+/// refused).
+pub fn export(scalars: &[(&'static str, f32)], row: &MetricsRow, hub: &crate::Hub) {
+    use std::sync::atomic::Ordering;
+    ::metrics::gauge!("saver_steps").set(row.steps as f64);
+    ::metrics::gauge!("saver_version").set(row.updates as f64);
+    for &(name, value) in scalars {
+        ::metrics::gauge!("saver_update_value", "name" => name).set(value as f64);
+    }
+    ::metrics::gauge!("saver_actors_streaming").set(hub.actors().len() as f64);
+    ::metrics::gauge!("saver_actors_pending").set(hub.pending() as f64);
+    let accepted = hub.stats.accepted.load(Ordering::Relaxed);
+    ::metrics::gauge!("saver_rollouts_accepted").set(accepted as f64);
+    ::metrics::gauge!("saver_rollouts_rejected")
+        .set(hub.stats.rejected.load(Ordering::Relaxed) as f64);
+}
+
 /// One row of metrics.csv.
 #[derive(Clone, Debug)]
 pub struct MetricsRow {

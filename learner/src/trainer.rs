@@ -176,7 +176,11 @@ impl Trainer {
             // A batch whose loss or gradient is not finite changed nothing: it is
             // skipped, and the same weights go out as the next version (sync actors
             // wait for one).
-            let stats = match self.algo.update(&batch) {
+            let update_start = std::time::Instant::now();
+            let updated = self.algo.update(&batch);
+            ::metrics::histogram!("saver_update_seconds")
+                .record(update_start.elapsed().as_secs_f64());
+            let stats = match updated {
                 Ok(stats) => Some(stats),
                 Err(CoreError::NonFinite(why)) => {
                     skipped += 1;
@@ -232,6 +236,7 @@ impl Trainer {
                 events
                     .write(row.steps, &scalars)
                     .map_err(|e| io("writing the TensorBoard events", e))?;
+                crate::metrics::export(&scalars, &row, &self.hub);
                 if let Some(tx) = &opts.rows {
                     let _ = tx.send(row);
                 }

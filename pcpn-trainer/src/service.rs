@@ -205,7 +205,13 @@ impl PcpnStoreApi for PcpnService {
         let saved = tokio::task::spawn_blocking(move || -> Result<PathBuf, String> {
             let dev = saver_core::device();
             let every = (p.batches / 20).max(1);
+            let env = spec.to_string();
             let report = pretrain_pcpn(&spec, &p, &dev, &mut |b| {
+                metrics::gauge!("saver_pretrain_batches_done", "env" => env.clone())
+                    .set(b.batch as f64);
+                metrics::gauge!("saver_pretrain_batches", "env" => env.clone())
+                    .set(b.batches as f64);
+                metrics::gauge!("saver_pretrain_loss", "env" => env.clone()).set(b.loss as f64);
                 if b.batch % every == 0 {
                     tracing::info!(
                         "pretraining {spec}: batch {}/{} loss {:.4}",

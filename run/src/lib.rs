@@ -13,6 +13,7 @@ pub mod output;
 pub mod plot;
 pub mod pretrain;
 pub mod progress;
+pub mod prometheus;
 pub mod services;
 pub mod train;
 

@@ -131,9 +131,23 @@ pub struct LearnerArgs {
     /// Actors elsewhere, or that cannot read it, get the bytes as before.
     #[arg(long, value_name = "DIR")]
     pub weights_dir: Option<String>,
+    /// Serve Prometheus metrics (text format, any path) on this address: steps,
+    /// version, actors, rollouts accepted and refused by reason, update and broadcast
+    /// latency, losses, episode length. No token (they hold no secrets).
+    #[arg(long, value_name = "ADDR")]
+    pub metrics: Option<SocketAddr>,
     /// Token and --insecure.
     #[command(flatten)]
     pub access: ServerAccess,
+}
+
+/// Serves Prometheus metrics on `addr` (if given) on `rt`, and says where.
+fn metrics_on(rt: &tokio::runtime::Runtime, addr: Option<SocketAddr>) -> Result<()> {
+    if let Some(addr) = addr {
+        let bound = crate::prometheus::serve_metrics(rt, addr)?;
+        eprintln!("Prometheus metrics at http://{bound}/metrics");
+    }
+    Ok(())
 }
 
 /// The learner's weights directory as `--weights-dir` asks.
@@ -171,6 +185,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     let saved = saver_learner::checkpoint::check_settings(&out, &config)
         .with_context(|| format!("resuming from {}", out.display()))?;
     let rt = runtime()?;
+    metrics_on(&rt, args.metrics)?;
     let pcpn = match (config.algo, args.pcpn.as_deref()) {
         (Algo::Saver, Some(url)) if url.starts_with("http://") || url.starts_with("https://") => {
             eprintln!(
@@ -369,6 +384,9 @@ pub struct PcpnTrainerArgs {
     /// The store folder.
     #[arg(long, default_value = "pcpn-cache")]
     pub store: PathBuf,
+    /// Serve Prometheus metrics (pretraining progress) on this address.
+    #[arg(long, value_name = "ADDR")]
+    pub metrics: Option<SocketAddr>,
     /// Token and --insecure.
     #[command(flatten)]
     pub access: ServerAccess,
@@ -378,6 +396,7 @@ pub struct PcpnTrainerArgs {
 pub fn pcpn_trainer(args: PcpnTrainerArgs) -> Result<()> {
     let check = args.access.check(args.listen)?;
     let rt = runtime()?;
+    metrics_on(&rt, args.metrics)?;
     let listener = rt.block_on(bind(args.listen))?;
     eprintln!(
         "pcpn-trainer serving the store {} on {}",

@@ -39,6 +39,40 @@ pub fn serve(args: &[&str]) -> (Proc, String) {
     (Proc(child), format!("http://{addr}"))
 }
 
+/// A port the OS had free a moment ago, on 127.0.0.1.
+fn free_port() -> String {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().to_string()
+}
+
+/// Scrapes Prometheus metrics at `addr` and parses the text format into
+/// `name{labels}` -> value (comment lines checked to be HELP or TYPE).
+fn scrape(addr: &str) -> std::collections::HashMap<String, f64> {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: saver\r\n\r\n")
+        .unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap();
+    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+    body.lines()
+        .filter(|l| !l.is_empty())
+        .filter(|l| {
+            let comment = l.starts_with('#');
+            assert!(
+                !comment || l.starts_with("# HELP") || l.starts_with("# TYPE"),
+                "{l}"
+            );
+            !comment
+        })
+        .map(|l| {
+            let (name, value) = l.rsplit_once(' ').unwrap();
+            (name.to_string(), value.parse::<f64>().unwrap())
+        })
+        .collect()
+}
+
 pub fn saver(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_saver"))
         .args(args)
@@ -62,12 +96,15 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
         "--pretrain-batches",
         "20",
     ];
+    let (store_metrics, learner_metrics) = (free_port(), free_port());
     let (_store, store_url) = serve(&[
         "pcpn-trainer",
         "--listen",
         "127.0.0.1:0",
         "--store",
         &d("store"),
+        "--metrics",
+        &store_metrics,
     ]);
     let ok = saver(&["healthcheck", "--addr", &store_url]);
     assert!(
@@ -77,6 +114,7 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
     );
 
     let mut largs = vec!["learner", "--listen", "127.0.0.1:0", "--pcpn", &store_url];
+    largs.extend(["--metrics", learner_metrics.as_str()]);
     let out_dir = d("grpc-run");
     largs.extend(run);
     largs.extend(["--out", out_dir.as_str()]);
@@ -125,6 +163,22 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
             .unwrap(),
     )
     .unwrap();
+    // Prometheus: the learner's counters after 20 updates of 4 actors, and the
+    // store's pretraining progress.
+    let m = scrape(&learner_metrics);
+    assert_eq!(m["saver_version"], 20.0, "{m:?}");
+    assert_eq!(m["saver_steps"], 640.0);
+    assert!(m["saver_rollouts_accepted_total"] >= 80.0, "{m:?}");
+    assert_eq!(m["saver_update_seconds_count"], 20.0, "{m:?}");
+    assert!(
+        m.contains_key("saver_update_value{name=\"actor_loss\"}"),
+        "{m:?}"
+    );
+    let p = scrape(&store_metrics);
+    assert_eq!(
+        p["saver_pretrain_batches_done{env=\"angle-d2\"}"], 20.0,
+        "{p:?}"
+    );
     assert_eq!(
         (last["finished"].as_bool(), last["version"].as_u64()),
         (Some(true), Some(20))
