@@ -426,6 +426,8 @@ impl Hub {
             Ok(()) => {
                 self.stats.accepted.fetch_add(1, Ordering::Relaxed);
                 ::metrics::counter!("saver_rollouts_accepted_total").increment(1);
+                // Rollouts waiting for the trainer (it takes them off: trainer.rs).
+                ::metrics::gauge!("saver_rollout_queue").increment(1.0);
                 if let Some(a) = self.lock().actors.get_mut(&id) {
                     a.last_seq = Some(seq);
                     a.ledger = ledger;

@@ -328,6 +328,7 @@ impl Trainer {
             }
             match self.rx.recv_timeout(Duration::from_millis(50)) {
                 Ok(r) => {
+                    ::metrics::gauge!("saver_rollout_queue").decrement(1.0);
                     if self.late.remove(&r.actor_id) {
                         tracing::info!(actor = r.actor_id, "late actor is back");
                     }

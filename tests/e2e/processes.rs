@@ -170,6 +170,8 @@ fn learner_and_four_actor_processes_equal_the_embedded_run() {
     assert_eq!(m["saver_steps"], 640.0);
     assert!(m["saver_rollouts_accepted_total"] >= 80.0, "{m:?}");
     assert_eq!(m["saver_update_seconds_count"], 20.0, "{m:?}");
+    let queued = m["saver_rollout_queue"];
+    assert!((0.0..=8.0).contains(&queued), "{m:?}");
     assert!(
         m.contains_key("saver_update_value{name=\"actor_loss\"}"),
         "{m:?}"
