@@ -3,7 +3,7 @@
 //! measures the updates against the machine's matmul peak; `saver plot` draws curves.
 
 use clap::{Parser, Subcommand};
-use saver_run::{bench, clients, config, eval, plot, pretrain, services, train};
+use saver_run::{bench, clients, config, eval, plot, pretrain, repro, services, train};
 use std::process::ExitCode;
 
 /// SAVER: state aligned vector rewards with quantile regression RL.
@@ -26,7 +26,9 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Run a trained policy on fresh episodes: success rate, lengths, returns, a picture.
     Eval(eval::EvalArgs),
-    /// Draw learning curves of one or more run folders into a PNG.
+    /// Run one of the paper's experiments as a grid of runs, then its figure and table.
+    Repro(repro::ReproArgs),
+    /// Draw learning curves of run folders (seeds grouped) into a PNG or SVG, with a table.
     Plot(plot::PlotArgs),
     /// Serve the Learner gRPC service: batches rollouts from actors, updates, publishes.
     Learner(services::LearnerArgs),
@@ -62,6 +64,7 @@ fn main() -> ExitCode {
         Command::Pretrain(a) => pretrain::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Repro(a) => repro::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Learner(a) => services::learner(a),
         Command::Actor(a) => services::actor(a),

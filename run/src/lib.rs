@@ -9,11 +9,13 @@ pub mod bench_services;
 pub mod clients;
 pub mod config;
 pub mod eval;
+pub mod figures;
 pub mod output;
 pub mod plot;
 pub mod pretrain;
 pub mod progress;
 pub mod prometheus;
+pub mod repro;
 pub mod services;
 pub mod train;
 

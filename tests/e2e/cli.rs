@@ -203,6 +203,22 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
         std::fs::read_to_string(again.join("config.toml")).unwrap(),
         config
     );
+    // `saver plot` groups runs of the same settings (seeds apart) into one band, as SVG
+    // too, with its table beside it.
+    let svg = dir.join("curves.svg");
+    let o = saver(&[
+        "plot",
+        run.to_str().unwrap(),
+        again.to_str().unwrap(),
+        "--out",
+        svg.to_str().unwrap(),
+        "--at",
+        "60000",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(std::fs::read_to_string(&svg).unwrap().starts_with("<svg"));
+    let md = std::fs::read_to_string(dir.join("curves.md")).unwrap();
+    assert!(md.contains("| a2c angle-d4 | 2 |"), "{md}");
     std::fs::remove_dir_all(dir).ok();
 }
 
