@@ -2,7 +2,7 @@
 //! its hashes, and pretrains one on request (once per env spec and pretraining
 //! settings, never silently again).
 
-use crate::store::{load_pcpn_bytes, PcpnStore};
+use crate::store::{check_pcpn_bytes, PcpnStore};
 use crate::train::pretrain_pcpn;
 use bytes::Bytes;
 use saver_core::config::PretrainConfig;
@@ -37,13 +37,9 @@ pub struct PcpnService {
 pub fn info_of(bytes: &[u8]) -> Result<pb::PcpnInfo, Status> {
     let spec = crate::store::spec_of(bytes)
         .ok_or_else(|| Status::data_loss("a stored file has no env_spec"))?;
-    let (_, info) = load_pcpn_bytes(
-        bytes,
-        std::path::Path::new("stored"),
-        &spec,
-        &candle_core::Device::Cpu,
-    )
-    .map_err(|e| Status::data_loss(e.to_string()))?;
+    // Checked (spec, settings, hash) without building the network.
+    let (_, info) = check_pcpn_bytes(bytes, std::path::Path::new("stored"), &spec)
+        .map_err(|e| Status::data_loss(e.to_string()))?;
     Ok(pb::PcpnInfo {
         env: Some((&spec).into()),
         settings: Some((&info.pretrain).into()),

@@ -219,6 +219,19 @@ pub fn load_pcpn_bytes(
     wanted: &EnvSpec,
     dev: &Device,
 ) -> Result<(Pcpn, PcpnInfo), StoreError> {
+    let (tensors, info) = check_pcpn_bytes(bytes, path, wanted)?;
+    let map = checkpoint::to_candle(&tensors, dev)?;
+    let pcpn = Pcpn::frozen(&info.spec.layout(), &|n| map.get(n).cloned())?;
+    Ok((pcpn, info))
+}
+
+/// What the bytes of a PCPN file are, every check of [`load_pcpn_bytes`] made (spec,
+/// settings, hash) but no network built: the tensors and the info.
+pub fn check_pcpn_bytes(
+    bytes: &[u8],
+    path: &Path,
+    wanted: &EnvSpec,
+) -> Result<(Vec<NamedTensor>, PcpnInfo), StoreError> {
     let shown = path.display().to_string();
     let (tensors, meta) = saver_proto::decode(bytes)
         .map_err(|e| saver_core::CoreError::Checkpoint(format!("{shown}: {e}")))?;
@@ -267,10 +280,8 @@ pub fn load_pcpn_bytes(
             actual,
         });
     }
-    let map = checkpoint::to_candle(&loaded.tensors, dev)?;
-    let pcpn = Pcpn::frozen(&spec.layout(), &|n| map.get(n).cloned())?;
     Ok((
-        pcpn,
+        loaded.tensors,
         PcpnInfo {
             spec,
             pretrain,

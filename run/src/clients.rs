@@ -142,39 +142,39 @@ fn not_answering(url: &str, e: anyhow::Error) -> anyhow::Error {
 }
 
 fn print_status(s: &pb::StatusReply, json: bool) {
+    use serde_json::Value;
+    // One list of fields for both forms (mean_ep_len_100: JSON null before the first
+    // episode, NaN in text).
+    let fields: [(&str, Value); 13] = [
+        ("algo", s.algo.clone().into()),
+        ("env", s.env.clone().into()),
+        ("mode", s.mode.clone().into()),
+        ("version", s.version.into()),
+        ("steps", s.steps.into()),
+        ("actors", s.actors.into()),
+        ("pending", s.pending.into()),
+        ("accepted", s.accepted.into()),
+        ("rejected", s.rejected.into()),
+        ("stale_dropped", s.stale_dropped.into()),
+        ("skipped_updates", s.skipped_updates.into()),
+        ("mean_ep_len_100", s.mean_ep_len_100.into()),
+        ("finished", s.finished.into()),
+    ];
     if json {
-        let finite = |v: f64| v.is_finite().then_some(v);
-        let j = serde_json::json!({
-            "algo": s.algo,
-            "env": s.env,
-            "mode": s.mode,
-            "version": s.version,
-            "steps": s.steps,
-            "actors": s.actors,
-            "pending": s.pending,
-            "accepted": s.accepted,
-            "rejected": s.rejected,
-            "stale_dropped": s.stale_dropped,
-            "skipped_updates": s.skipped_updates,
-            "mean_ep_len_100": finite(s.mean_ep_len_100),
-            "finished": s.finished,
-        });
-        crate::out!("{j}");
+        let map: serde_json::Map<String, Value> = fields
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect();
+        crate::out!("{}", Value::Object(map));
         return;
     }
-    crate::out!("algo {}", s.algo);
-    crate::out!("env {}", s.env);
-    crate::out!("mode {}", s.mode);
-    crate::out!("version {}", s.version);
-    crate::out!("steps {}", s.steps);
-    crate::out!("actors {}", s.actors);
-    crate::out!("pending {}", s.pending);
-    crate::out!("accepted {}", s.accepted);
-    crate::out!("rejected {}", s.rejected);
-    crate::out!("stale_dropped {}", s.stale_dropped);
-    crate::out!("skipped_updates {}", s.skipped_updates);
-    crate::out!("mean_ep_len_100 {}", s.mean_ep_len_100);
-    crate::out!("finished {}", s.finished);
+    for (k, v) in fields {
+        match v {
+            Value::String(t) => crate::out!("{k} {t}"),
+            Value::Null => crate::out!("{k} NaN"),
+            v => crate::out!("{k} {v}"),
+        }
+    }
 }
 
 /// `saver healthcheck` flags.

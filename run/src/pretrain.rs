@@ -118,18 +118,17 @@ fn obtain(
 
 /// The PCPN of a SAVER run (none for A2C): `explicit` if given, else the store's for
 /// the run's pretraining settings, else pretrained now; pinned to
-/// `config.pcpn_sha256` or, on resume, to the one the saved run used (`saved`). The
-/// choice is recorded in `config` (weights sha256, and an explicit file's settings).
+/// `config.pcpn_sha256` when set (on resume: [`pin_saved`]). The choice is recorded
+/// in `config` (weights sha256, and an explicit file's settings).
 pub fn pcpn_for_run(
     config: &mut RunConfig,
-    saved: Option<String>,
     store: &PcpnStore,
     explicit: Option<&Path>,
 ) -> Result<Option<Pcpn>> {
     if config.algo != Algo::Saver {
         return Ok(None);
     }
-    let pinned = config.pcpn_sha256.clone().or(saved);
+    let pinned = config.pcpn_sha256.clone();
     let (pcpn, info, origin) = obtain(
         &config.env,
         &config.pretrain,
@@ -155,12 +154,33 @@ pub fn pcpn_for_run(
             &info.weights_sha256[..12]
         ),
     }
-    record(config, &info);
+    record(config, &info)?;
     Ok(Some(pcpn))
 }
 
-/// Records `info` as the run's PCPN.
-pub fn record(config: &mut RunConfig, info: &PcpnInfo) {
+/// Pins a resumed run to the PCPN its checkpoint used (`saved`, from
+/// `check_settings`) unless its config names one already; every later check (the
+/// store's, [`record`], the learner's start) then holds the PCPN to it.
+pub fn pin_saved(config: &mut RunConfig, saved: Option<String>) {
+    if config.pcpn_sha256.is_none() {
+        config.pcpn_sha256 = saved;
+    }
+}
+
+/// Records `info` as the run's PCPN; refused when the run is pinned to other weights.
+pub fn record(config: &mut RunConfig, info: &PcpnInfo) -> Result<()> {
+    if let Some(want) = config
+        .pcpn_sha256
+        .as_ref()
+        .filter(|w| **w != info.weights_sha256)
+    {
+        anyhow::bail!(
+            "{}: weights sha256 {}, but this run uses the PCPN {want}",
+            info.path.display(),
+            info.weights_sha256
+        );
+    }
     config.pretrain = info.pretrain;
     config.pcpn_sha256 = Some(info.weights_sha256.clone());
+    Ok(())
 }

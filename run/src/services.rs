@@ -5,7 +5,7 @@
 use crate::access::{client_tls, ClientArgs, ServerAccess};
 use crate::pretrain::{pcpn_for_run, record};
 use crate::train::{default_run_dir, follow, report, start_learner};
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::Args;
 use saver_actor::remote::{run_remote, RemoteActor};
 use saver_core::config::Algo;
@@ -184,6 +184,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     // A folder of another run is refused before anything is fetched or written.
     let saved = saver_learner::checkpoint::check_settings(&out, &config)
         .with_context(|| format!("resuming from {}", out.display()))?;
+    crate::pretrain::pin_saved(&mut config, saved);
     let rt = runtime()?;
     metrics_on(&rt, args.metrics)?;
     let pcpn = match (config.algo, args.pcpn.as_deref()) {
@@ -202,21 +203,13 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
             let shown = PathBuf::from(format!("{url} ({})", config.env));
             let (pcpn, info) = load_pcpn_bytes(&bytes, &shown, &config.env, &saver_core::device())
                 .map_err(|e| anyhow::anyhow!("FAILED_PRECONDITION: {e}"))?;
-            let pinned = config.pcpn_sha256.clone().or(saved);
-            if pinned.as_ref().is_some_and(|p| *p != info.weights_sha256) {
-                bail!(
-                    "the PCPN from {url} has weights sha256 {}, but this run uses {}",
-                    info.weights_sha256,
-                    pinned.unwrap_or_default()
-                );
-            }
             eprintln!("PCPN from {url}: weights sha256 {}", info.weights_sha256);
-            record(&mut config, &info);
+            // A pinned run (resumed, or named in its config) refuses other weights.
+            record(&mut config, &info)?;
             Some(pcpn)
         }
         (_, file) => pcpn_for_run(
             &mut config,
-            saved,
             &PcpnStore::new(&args.pcpn_dir),
             file.map(Path::new),
         )?,

@@ -69,7 +69,10 @@ pub fn train(
     // included); start_learner checks again and only then writes into it.
     let saved = saver_learner::checkpoint::check_settings(out, config)
         .with_context(|| format!("resuming from {}", out.display()))?;
-    let pcpn = pcpn_for_run(config, saved, &PcpnStore::new(pcpn_dir), pcpn_file)?;
+    let pcpn = {
+        crate::pretrain::pin_saved(config, saved);
+        pcpn_for_run(config, &PcpnStore::new(pcpn_dir), pcpn_file)?
+    };
     let outcome = train_with(config, out, pcpn, stop, show)?;
     let png = out.join("learning_curve.png");
     plot_runs(&[out.to_path_buf()], &png).context("drawing the learning curve")?;

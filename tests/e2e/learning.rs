@@ -99,7 +99,7 @@ fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
     let mut config = RunConfig::recommended(&spec, Algo::Saver, 150_000);
     config.pretrain.batches = 1_000;
     let store = saver_pcpn_trainer::PcpnStore::new(dir.join("pcpn"));
-    let pcpn = saver_run::pretrain::pcpn_for_run(&mut config, None, &store, None).unwrap();
+    let pcpn = saver_run::pretrain::pcpn_for_run(&mut config, &store, None).unwrap();
     let o = train_with(
         &config,
         &dir.join("run"),
