@@ -4,16 +4,20 @@
 //!
 //! FLOPs counted (multiply-add = 2): a trained dense layer costs 3× its forward
 //! (forward, input gradient, weight gradient); the frozen PCPN costs 2× its forward
-//! (forward and input gradient: no weight gradient is needed).
+//! (forward and input gradient: no weight gradient is needed). Pretraining trains the
+//! PCPN, so its layers cost 3× their forward, plus the cosine embedding and its product
+//! with the chunks (one multiply each per row and feature).
 
 use crate::train::train_with;
 use anyhow::Result;
 use candle_core::{Device, Tensor};
 use clap::Args;
-use saver_core::algo::{build, threads_for, Algorithm};
+use saver_core::algo::{build, threads_for, Algorithm, GradPath};
+use saver_core::config::PretrainConfig;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvLayout, EnvSpec};
 use saver_core::nets::{ParamSet, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
+use saver_core::pretrain::{EnvSampler, Pretrainer};
 use saver_core::rng::{rng_for, uniform01};
 use saver_core::rollout::Batch;
 use std::sync::atomic::AtomicBool;
@@ -92,6 +96,68 @@ pub fn update_flops(algo: Algo, l: &EnvLayout, b: usize, t: usize, k: usize) -> 
             agent + critic + 2.0 * (shared + heads + embed)
         }
     }
+}
+
+/// FLOPs of one pretraining batch of `b` samples with K = `k` (module doc).
+pub fn pretrain_flops(l: &EnvLayout, b: usize, k: usize) -> f64 {
+    let d = l.aligned_dim;
+    let shared = mlp_flops(b, &[l.pcpn_input_dim(), PCPN_HIDDEN, d * PCPN_CHUNK]);
+    let heads = d as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
+    let embed = (b * k * d * PCPN_CHUNK) as f64;
+    3.0 * (shared + heads) + 2.0 * embed
+}
+
+/// Seconds per pretraining batch on angle d with the default settings (batch 128,
+/// K = 32; env sampling included), on `path` with the fused blocks on `threads`.
+fn time_pretrain(d: usize, seconds: f64, path: GradPath, threads: usize) -> Result<(f64, f64)> {
+    let spec = EnvSpec::new(EnvKind::Angle, d)?;
+    let p = PretrainConfig::recommended(EnvKind::Angle);
+    let source = Box::new(EnvSampler::new(&spec, 0, 1)?);
+    let mut t = Pretrainer::new(source, &p, &Device::Cpu)?;
+    t.set_grad_path(path);
+    t.set_threads(threads);
+    let s = time(seconds, || {
+        t.step()?;
+        Ok(())
+    })?;
+    Ok((s, pretrain_flops(&spec.layout(), p.batch_size, p.quantiles)))
+}
+
+/// The pretraining rows: batches/s and share of the matmul peak on one core, the
+/// autograd reference beside it, and the blocks on `threads` threads.
+fn pretraining(args: &BenchArgs, peak: f64, threads: usize) -> Result<()> {
+    crate::out!(
+        "\nPCPN pretraining (angle, batch 128, K = 32; hand-written path, blocks on 1 thread, \
+         then on {threads}; candle autograd as the reference):"
+    );
+    crate::out!(
+        "{:>3} {:>10} {:>10} {:>9} {:>12} {:>12} {:>13} {:>16}",
+        "d",
+        "batch/s",
+        "GFLOP/s",
+        "of peak",
+        "autograd b/s",
+        "vs autograd",
+        format!("batch/s, {threads} thr"),
+        "100k batches"
+    );
+    for &d in &args.dims {
+        let (fast, flops) = time_pretrain(d, args.seconds, GradPath::Fast, 1)?;
+        let (reference, _) = time_pretrain(d, args.seconds, GradPath::Reference, 1)?;
+        let (wide, _) = time_pretrain(d, args.seconds, GradPath::Fast, threads)?;
+        let gflops = flops / fast / 1e9;
+        crate::out!(
+            "{d:>3} {:>10.1} {:>10.2} {:>8.1}% {:>12.1} {:>11.2}x {:>13.1} {:>14.1} min",
+            1.0 / fast,
+            gflops,
+            100.0 * gflops / peak,
+            1.0 / reference,
+            reference / fast,
+            1.0 / wide,
+            1e5 * wide / 60.0
+        );
+    }
+    Ok(())
 }
 
 /// A batch of 16 trajectories × 8 steps with random contents of the right shapes.
@@ -219,6 +285,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             );
         }
     }
+    pretraining(&args, peak, threads)?;
     crate::out!("\nrollout + update cycle (16 actors x 8 steps, in-process, angle):");
     let dev = Device::Cpu;
     let out = std::env::temp_dir().join(format!("saver-bench-{}", std::process::id()));

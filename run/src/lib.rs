@@ -8,6 +8,7 @@ pub mod bench;
 pub mod bench_services;
 pub mod clients;
 pub mod config;
+pub mod diagnose;
 pub mod eval;
 pub mod figures;
 pub mod output;

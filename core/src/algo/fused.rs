@@ -14,6 +14,14 @@
 //! dz[b, i]  = Σ_k de[b·K + k, i] · cos[b·K + k, i]
 //! ```
 //!
+//! With weight gradients on (PCPN pretraining, where the heads are trained), a block
+//! also gives its share of the head gradients before its buffers are overwritten:
+//!
+//! ```text
+//! dw3_j = uᵀ·dq,  db3_j = Σ_r dq[r]         (u after its ReLU)
+//! dW2_j = eᵀ·du,  db2_j = Σ_r du[r, ·]      (gemm, 128×R×64)
+//! ```
+//!
 //! Every buffer of a block (about 0.5 MB at BLOCK = 8) stays in the core's L2 cache,
 //! where the unfused path wrote and re-read ~28 MB per update at d = 4 (measured: 11 %
 //! of the update in memset alone). Blocks are independent, so they are split across
@@ -52,6 +60,46 @@ pub struct Heads {
     pub b3: Vec<f32>,
 }
 
+impl Heads {
+    /// Zeros of the shapes of a PCPN's heads with `d` dimensions.
+    fn zeros(d: usize) -> Self {
+        let h = PCPN_HEAD_HIDDEN;
+        Self {
+            w2: vec![0.0; d * EMBED_DIM * h],
+            b2: vec![0.0; d * h],
+            w3: vec![0.0; d * h],
+            b3: vec![0.0; d],
+        }
+    }
+}
+
+/// The loss the blocks compute: SAVER's (κ and λ_mon from its config), or the plain
+/// quantile loss of PCPN pretraining (advantages of 1, no κ, λ_mon = 0).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Loss {
+    /// Huber threshold of the quantile loss (`None`: plain ρ_τ).
+    pub kappa: Option<f64>,
+    /// Weight of the monotonic penalty (0: none).
+    pub lambda_mon: f64,
+}
+
+impl From<&SaverConfig> for Loss {
+    fn from(c: &SaverConfig) -> Self {
+        Self {
+            kappa: c.kappa,
+            lambda_mon: c.lambda_mon,
+        }
+    }
+}
+
+impl Loss {
+    /// Pretraining's loss: mean ρ_τ(Δp − q), nothing else.
+    pub const PRETRAIN: Self = Self {
+        kappa: None,
+        lambda_mon: 0.0,
+    };
+}
+
 /// What the blocks add up to.
 pub struct Fused {
     /// L_a = Σ ρ_τ(δ)·Â / (B·K·d).
@@ -60,6 +108,8 @@ pub struct Fused {
     pub mon_loss: f32,
     /// dL/dz [B, d·128] (before z's ReLU mask).
     pub dz: Vec<f32>,
+    /// dL/d(heads), in the layout of [`Heads`], when asked for.
+    pub head_grads: Option<Heads>,
 }
 
 /// The inputs that every block reads.
@@ -83,9 +133,29 @@ pub struct Inputs<'a> {
 struct Job<'a> {
     heads: &'a Heads,
     x: &'a Inputs<'a>,
-    cfg: &'a SaverConfig,
+    loss: Loss,
     qn: f64,
     mn: f64,
+    weight_grads: bool,
+}
+
+/// One block's results: (Σ ρ·Â, Σ Huber, dz block [n, 128], its head gradients).
+struct UnitOut {
+    la: f64,
+    lm: f64,
+    dz: Vec<f32>,
+    grads: Option<HeadGrad>,
+}
+
+/// One block's share of one dimension's head gradients.
+struct HeadGrad {
+    /// [128, 64].
+    w2: Vec<f32>,
+    /// [64].
+    b2: Vec<f32>,
+    /// [64].
+    w3: Vec<f32>,
+    b3: f32,
 }
 
 /// Scratch buffers of one block, reused across the blocks a worker runs.
@@ -100,8 +170,9 @@ struct Scratch {
 }
 
 /// Runs every (dimension, block) unit on `threads` threads (0: one per core); see the
-/// module docs.
-pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig, threads: usize) -> Fused {
+/// module docs. With `weight_grads` the result also holds the heads' gradients (added
+/// in block order, so they too do not depend on the thread count).
+pub fn run(heads: &Heads, x: &Inputs, loss: Loss, threads: usize, weight_grads: bool) -> Fused {
     let units: Vec<(usize, usize)> = (0..x.d)
         .flat_map(|j| (0..x.b).step_by(BLOCK).map(move |b0| (j, b0)))
         .collect();
@@ -109,9 +180,10 @@ pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig, threads: usize) -> Fuse
     let job = Job {
         heads,
         x,
-        cfg,
+        loss,
         qn: 1.0 / (b * k * d),
-        mn: cfg.lambda_mon * 2.0 * k / (b * k * k * d),
+        mn: loss.lambda_mon * 2.0 * k / (b * k * k * d),
+        weight_grads,
     };
     let threads = threads_for(threads).clamp(1, units.len().max(1));
     let run_of = |part: &[(usize, usize)]| {
@@ -120,7 +192,7 @@ pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig, threads: usize) -> Fuse
             .map(|&(j, b0)| unit(&job, j, b0, &mut s))
             .collect::<Vec<_>>()
     };
-    let parts: Vec<(f64, f64, Vec<f32>)> = if threads == 1 {
+    let parts: Vec<UnitOut> = if threads == 1 {
         run_of(&units)
     } else {
         let per = units.len().div_ceil(threads);
@@ -138,27 +210,42 @@ pub fn run(heads: &Heads, x: &Inputs, cfg: &SaverConfig, threads: usize) -> Fuse
     let (w, dw) = (EMBED_DIM, x.d * EMBED_DIM);
     let mut dz = vec![0.0f32; x.b * dw];
     let (mut actor_sum, mut mon_sum) = (0.0, 0.0);
-    for (&(j, b0), (la, lm, block)) in units.iter().zip(parts) {
-        actor_sum += la;
-        mon_sum += lm;
-        for (r, row) in block.chunks_exact(w).enumerate() {
+    let mut head_grads = weight_grads.then(|| Heads::zeros(x.d));
+    for (&(j, b0), out) in units.iter().zip(parts) {
+        actor_sum += out.la;
+        mon_sum += out.lm;
+        for (r, row) in out.dz.chunks_exact(w).enumerate() {
             let at = (b0 + r) * dw + j * w;
             dz[at..at + w].copy_from_slice(row);
+        }
+        if let (Some(all), Some(g)) = (head_grads.as_mut(), out.grads) {
+            let h = PCPN_HEAD_HIDDEN;
+            add_into(&mut all.w2[j * w * h..(j + 1) * w * h], &g.w2);
+            add_into(&mut all.b2[j * h..(j + 1) * h], &g.b2);
+            add_into(&mut all.w3[j * h..(j + 1) * h], &g.w3);
+            all.b3[j] += g.b3;
         }
     }
     Fused {
         actor_loss: (actor_sum * job.qn) as f32,
         mon_loss: (mon_sum * job.mn) as f32,
         dz,
+        head_grads,
     }
 }
 
-/// One dimension j and the transitions b0..b0+BLOCK: (Σ ρ·Â, Σ Huber, dz block [n, 128]).
+fn add_into(acc: &mut [f32], x: &[f32]) {
+    for (a, &v) in acc.iter_mut().zip(x) {
+        *a += v;
+    }
+}
+
+/// One dimension j and the transitions b0..b0+BLOCK.
 ///
 /// Compiled twice: for the baseline x86-64 target and with AVX2 (8 f32 lanes instead
 /// of 4), picked at run time. No `mul_add` is written and no float reduction is
 /// reordered, so both give the same bits.
-fn unit(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<f32>) {
+fn unit(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> UnitOut {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2 (checked just now).
@@ -169,12 +256,12 @@ fn unit(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<f32>)
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn unit_avx2(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<f32>) {
+unsafe fn unit_avx2(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> UnitOut {
     unit_body(job, j, b0, s)
 }
 
 #[inline(always)]
-fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<f32>) {
+fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> UnitOut {
     let (heads, x) = (job.heads, job.x);
     let (w, h, k) = (EMBED_DIM, PCPN_HEAD_HIDDEN, x.k);
     let n = BLOCK.min(x.b - b0);
@@ -197,7 +284,7 @@ fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<
         s.e.extend(c.iter().zip(zrow).map(|(&c, &z)| c * z));
     }
     s.u.resize(rows * h, 0.0);
-    matmul(&mut s.u, &s.e, w2, rows, w, h, false);
+    matmul(&mut s.u, &s.e, w2, (rows, w, h), (false, false));
     s.q.clear();
     for urow in s.u.chunks_exact_mut(h) {
         for (v, &bias) in urow.iter_mut().zip(b2) {
@@ -218,7 +305,7 @@ fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<
             x.state_delta[b * x.d + j],
             x.advantage[b * x.d + j],
             &mut s.dq[rg],
-            job.cfg,
+            job.loss,
             (job.qn, job.mn as f32),
             &mut s.order,
         );
@@ -226,13 +313,35 @@ fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<
         lm += m;
     }
 
+    // dw3 = uᵀ·dq and db3 = Σ dq while u still holds the activations.
+    let mut grads = job.weight_grads.then(|| {
+        let mut dw3 = vec![0.0f32; h];
+        for (urow, &g) in s.u.chunks_exact(h).zip(&s.dq) {
+            for (a, &v) in dw3.iter_mut().zip(urow) {
+                *a += g * v;
+            }
+        }
+        HeadGrad {
+            w2: vec![0.0; w * h],
+            b2: vec![0.0; h],
+            w3: dw3,
+            b3: s.dq.iter().sum(),
+        }
+    });
     // du (in u's buffer), then de (in e's buffer).
     for (urow, &g) in s.u.chunks_exact_mut(h).zip(&s.dq) {
         for (v, &ww) in urow.iter_mut().zip(w3) {
             *v = g * ww * f32::from(u8::from(*v > 0.0));
         }
     }
-    matmul(&mut s.e, &s.u, w2, rows, h, w, true);
+    if let Some(g) = grads.as_mut() {
+        // dW2 = eᵀ·du [128, 64], db2 = Σ_r du[r, ·], before e is overwritten.
+        matmul(&mut g.w2, &s.e, &s.u, (w, rows, h), (true, false));
+        for urow in s.u.chunks_exact(h) {
+            add_into(&mut g.b2, urow);
+        }
+    }
+    matmul(&mut s.e, &s.u, w2, (rows, h, w), (false, true));
     let mut dz = vec![0.0f32; n * w];
     for (t, acc) in dz.chunks_exact_mut(w).enumerate() {
         let off = t * k * w;
@@ -245,7 +354,7 @@ fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> (f64, f64, Vec<
             }
         }
     }
-    (la, lm, dz)
+    UnitOut { la, lm, dz, grads }
 }
 
 /// One transition's K rows for one dimension: adds dL/dq into `gs` and returns the
@@ -260,19 +369,19 @@ fn transition_grad(
     target: f32,
     adv: f32,
     gs: &mut [f32],
-    cfg: &SaverConfig,
+    loss: Loss,
     (qn, mn): (f64, f32),
     order: &mut Vec<usize>,
 ) -> (f64, f64) {
     let k = qs.len();
-    let kappa = cfg.kappa.map(|k| k as f32);
+    let kappa = loss.kappa.map(|k| k as f32);
     let mut la = 0.0f64;
     for i in 0..k {
         let (rho, drho) = quantile_rho(target - qs[i], ts[i], kappa);
         la += (rho * adv) as f64;
         gs[i] += (-(drho * adv) as f64 * qn) as f32;
     }
-    if cfg.lambda_mon == 0.0 {
+    if loss.lambda_mon == 0.0 {
         return (la, 0.0);
     }
     // Pairs in ascending τ, each once, without branches: `pair_penalty` of
@@ -298,10 +407,19 @@ fn transition_grad(
     (la, row_loss as f64)
 }
 
-/// dst [m, n] = lhs [m, kk] · rhs, all row-major; rhs is [kk, n], or with `rhs_t` the
-/// transpose of a row-major [n, kk]. One thread (the blocks are the parallelism).
-fn matmul(dst: &mut [f32], lhs: &[f32], rhs: &[f32], m: usize, kk: usize, n: usize, rhs_t: bool) {
+/// dst [m, n] = lhs [m, kk] · rhs [kk, n], all row-major, where `(lhs_t, rhs_t)` say
+/// that an operand is given as its transpose (lhs as a row-major [kk, m], rhs as a
+/// row-major [n, kk]). One thread (the blocks are the parallelism).
+fn matmul(
+    dst: &mut [f32],
+    lhs: &[f32],
+    rhs: &[f32],
+    (m, kk, n): (usize, usize, usize),
+    (lhs_t, rhs_t): (bool, bool),
+) {
     assert!(dst.len() == m * n && lhs.len() == m * kk && rhs.len() == kk * n);
+    // (column stride, row stride) of each operand as an [rows, cols] matrix.
+    let (lhs_cs, lhs_rs) = if lhs_t { (m, 1) } else { (1, kk) };
     let (rhs_cs, rhs_rs) = if rhs_t { (kk, 1) } else { (1, n) };
     // SAFETY: the three slices hold exactly the elements the strides address (asserted
     // above), dst does not alias the inputs (&mut), and with read_dst = false gemm only
@@ -316,8 +434,8 @@ fn matmul(dst: &mut [f32], lhs: &[f32], rhs: &[f32], m: usize, kk: usize, n: usi
             n as isize,
             false,
             lhs.as_ptr(),
-            1,
-            kk as isize,
+            lhs_cs as isize,
+            lhs_rs as isize,
             rhs.as_ptr(),
             rhs_cs as isize,
             rhs_rs as isize,
@@ -355,17 +473,22 @@ mod tests {
     use super::*;
 
     #[test]
-    fn matmul_matches_by_hand_both_layouts() {
+    fn matmul_matches_by_hand_in_every_layout() {
         // [1 2 3; 4 5 6] · [1 0; 0 1; 1 1] = [4 5; 10 11] (by hand).
         let lhs = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
         let rhs = [1.0, 0.0, 0.0, 1.0, 1.0, 1.0];
         let mut dst = [f32::NAN; 4]; // never read: read_dst = false
-        matmul(&mut dst, &lhs, &rhs, 2, 3, 2, false);
+        matmul(&mut dst, &lhs, &rhs, (2, 3, 2), (false, false));
         assert_eq!(dst, [4.0, 5.0, 10.0, 11.0]);
         // The same rhs given as its transpose [2, 3] = [1 0 1; 0 1 1].
         let rhs_t = [1.0, 0.0, 1.0, 0.0, 1.0, 1.0];
         let mut dst = [f32::NAN; 4];
-        matmul(&mut dst, &lhs, &rhs_t, 2, 3, 2, true);
+        matmul(&mut dst, &lhs, &rhs_t, (2, 3, 2), (false, true));
+        assert_eq!(dst, [4.0, 5.0, 10.0, 11.0]);
+        // The same lhs given as its transpose [3, 2] = [1 4; 2 5; 3 6].
+        let lhs_t = [1.0, 4.0, 2.0, 5.0, 3.0, 6.0];
+        let mut dst = [f32::NAN; 4];
+        matmul(&mut dst, &lhs_t, &rhs, (2, 3, 2), (true, false));
         assert_eq!(dst, [4.0, 5.0, 10.0, 11.0]);
     }
 }

@@ -2,12 +2,12 @@
 //! weight publishing do not care which one runs (and a third, standalone QRRL, fits).
 
 mod a2c;
-mod fused;
+pub(crate) mod fused;
 mod saver;
 mod saver_grad;
 
 pub use a2c::A2c;
-pub use fused::threads_for;
+pub use fused::{threads_for, Loss};
 pub use saver::{tau_tensors, GradPath, Saver};
 pub use saver_grad::{policy_grads, saver_actor_losses, InputGrad, PcpnGrad, SaverLosses};
 

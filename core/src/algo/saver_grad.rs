@@ -44,8 +44,21 @@ pub struct InputGrad {
     pub dx: Tensor,
 }
 
-fn host(t: &Tensor) -> Result<Vec<f32>> {
+/// A tensor's values on the host, row-major.
+pub(crate) fn host(t: &Tensor) -> Result<Vec<f32>> {
     Ok(t.flatten_all()?.to_vec1()?)
+}
+
+impl Heads {
+    /// The current values of a PCPN's heads (of its variables while it trains).
+    pub(crate) fn of(pcpn: &Pcpn) -> Result<Self> {
+        Ok(Self {
+            w2: host(&pcpn.w2)?,
+            b2: host(&pcpn.b2)?,
+            w3: host(&pcpn.w3)?,
+            b3: host(&pcpn.b3)?,
+        })
+    }
 }
 
 impl PcpnGrad {
@@ -54,12 +67,7 @@ impl PcpnGrad {
         Ok(Self {
             w0t: pcpn.l0.w.t()?.contiguous()?,
             w1t: pcpn.l1.w.t()?.contiguous()?,
-            heads: Heads {
-                w2: host(&pcpn.w2)?,
-                b2: host(&pcpn.b2)?,
-                w3: host(&pcpn.w3)?,
-                b3: host(&pcpn.b3)?,
-            },
+            heads: Heads::of(&pcpn)?,
             pcpn,
             threads: 0,
         })
@@ -101,7 +109,7 @@ impl PcpnGrad {
             k: taus.len() / (b * d),
             d,
         };
-        let out = fused::run(&self.heads, &batch, cfg, self.threads);
+        let out = fused::run(&self.heads, &batch, cfg.into(), self.threads, false);
         let dz = Tensor::from_vec(out.dz, z.shape(), z.device())?;
         let dz = dz.mul(&z.gt(0.0)?.to_dtype(z.dtype())?)?;
         let dh = dz

@@ -142,6 +142,11 @@ impl Pcpn {
             .collect()
     }
 
+    /// The dtype of its weights.
+    pub fn dtype(&self) -> candle_core::DType {
+        self.l0.w.dtype()
+    }
+
     /// Number of state-aligned dims d.
     pub fn dim(&self) -> usize {
         self.dim
