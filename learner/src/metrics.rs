@@ -201,6 +201,100 @@ impl MetricsCsv {
     }
 }
 
+/// Writes per_dim.csv: `steps,updates` and, for each per-dimension statistic of the
+/// algorithm (`UpdateStats::per_dim`), one column per dimension (`critic_mse_0`, ...),
+/// each the mean over the last `every` updates (the row's steps are the last one's).
+/// Nothing is written for an algorithm without such statistics.
+pub struct PerDimCsv {
+    /// The file.
+    path: std::path::PathBuf,
+    /// Keep an existing file's rows (a resumed run).
+    append: bool,
+    /// Updates per row.
+    every: u64,
+    /// The open file, once the first row is due.
+    out: Option<std::io::BufWriter<std::fs::File>>,
+    /// Sums since the last row, by statistic.
+    sums: Vec<(&'static str, Vec<f64>)>,
+    /// Updates since the last row.
+    n: u64,
+}
+
+impl PerDimCsv {
+    /// A writer of `path` (created at the first row).
+    pub fn new(path: &Path, append: bool, every: u64) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            append,
+            every: every.max(1),
+            out: None,
+            sums: Vec::new(),
+            n: 0,
+        }
+    }
+
+    /// Adds one update's statistics; writes a row every `every` updates.
+    pub fn add(
+        &mut self,
+        steps: u64,
+        updates: u64,
+        stats: &[(&'static str, Vec<f32>)],
+    ) -> std::io::Result<()> {
+        if stats.is_empty() {
+            return Ok(());
+        }
+        if self.sums.is_empty() {
+            self.sums = stats
+                .iter()
+                .map(|(n, v)| (*n, vec![0.0; v.len()]))
+                .collect();
+        }
+        for ((_, acc), (_, v)) in self.sums.iter_mut().zip(stats) {
+            for (a, &x) in acc.iter_mut().zip(v) {
+                *a += x as f64;
+            }
+        }
+        self.n += 1;
+        if self.n < self.every {
+            return Ok(());
+        }
+        if self.out.is_none() {
+            let existing = self.append && self.path.exists();
+            let file = std::fs::OpenOptions::new()
+                .create(true)
+                .append(existing)
+                .write(true)
+                .truncate(!existing)
+                .open(&self.path)?;
+            let mut out = std::io::BufWriter::new(file);
+            if !existing {
+                write!(out, "steps,updates")?;
+                for (name, v) in &self.sums {
+                    for i in 0..v.len() {
+                        write!(out, ",{name}_{i}")?;
+                    }
+                }
+                writeln!(out)?;
+            }
+            self.out = Some(out);
+        }
+        let n = self.n as f64;
+        let Some(out) = self.out.as_mut() else {
+            return Ok(());
+        };
+        write!(out, "{steps},{updates}")?;
+        for (_, acc) in &mut self.sums {
+            for a in acc.iter_mut() {
+                write!(out, ",{:e}", (*a / n) as f32)?;
+                *a = 0.0;
+            }
+        }
+        writeln!(out)?;
+        self.n = 0;
+        out.flush()
+    }
+}
+
 /// A resumed run's metrics.csv: drops the rows written after its checkpoint (more
 /// than `steps` steps: the run goes on from the checkpoint and writes them anew) and
 /// returns how many it dropped and the largest weights version any row names (every
@@ -292,5 +386,46 @@ mod tests {
         );
         assert_eq!(truncate_after(&dir.join("none.csv"), 0).unwrap(), (0, 0));
         std::fs::remove_dir_all(dir).ok();
+    }
+
+    #[test]
+    fn per_dim_rows_are_means_over_every_updates() {
+        let dir = std::env::temp_dir().join(format!("saver-perdim-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("per_dim.csv");
+        let mut w = PerDimCsv::new(&path, false, 2);
+        // Means of (1, 3) and (10, 30) over 2 updates: 2 and 20; (5, 7) -> 6, ...
+        for (s, a, b) in [
+            (8, 1.0, 10.0),
+            (16, 3.0, 30.0),
+            (24, 5.0, 50.0),
+            (32, 7.0, 70.0),
+        ] {
+            w.add(s, s / 8, &[("critic_mse", vec![a, b]), ("mu_sat", vec![a])])
+                .unwrap();
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(
+            text,
+            "steps,updates,critic_mse_0,critic_mse_1,mu_sat_0\n16,2,2e0,2e1,2e0\n32,4,6e0,6e1,6e0\n"
+        );
+        // A resumed run appends below the kept rows, without a second header.
+        let mut w = PerDimCsv::new(&path, true, 1);
+        w.add(
+            40,
+            5,
+            &[("critic_mse", vec![1.0, 2.0]), ("mu_sat", vec![0.5])],
+        )
+        .unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            text.ends_with("32,4,6e0,6e1,6e0\n40,5,1e0,2e0,5e-1\n"),
+            "{text}"
+        );
+        // An algorithm without per-dimension statistics writes no file.
+        let none = dir.join("none.csv");
+        PerDimCsv::new(&none, false, 1).add(8, 1, &[]).unwrap();
+        assert!(!none.exists());
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

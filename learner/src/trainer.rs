@@ -125,6 +125,9 @@ struct Round {
     lag_max: u64,
 }
 
+/// Updates per row of per_dim.csv (each row the mean over them).
+const PER_DIM_EVERY: u64 = 10;
+
 impl Trainer {
     fn run(mut self, opts: &TrainerOptions) -> Result<TrainerOutcome> {
         let io = |what: &str, e: std::io::Error| CoreError::Checkpoint(format!("{what}: {e}"));
@@ -141,6 +144,8 @@ impl Trainer {
         let resumed = c != Counters::default();
         let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names(), resumed)
             .map_err(|e| io("creating metrics.csv", e))?;
+        let mut per_dim =
+            crate::metrics::PerDimCsv::new(&run_dir.join("per_dim.csv"), resumed, PER_DIM_EVERY);
         let mut events = crate::tensorboard::EventWriter::create(run_dir)
             .map_err(|e| io("creating the TensorBoard event file", e))?;
         let config = self.hub.config().clone();
@@ -232,6 +237,9 @@ impl Trainer {
                 // The row before the version: a resumed run learns from metrics.csv
                 // the newest version any client can have seen.
                 csv.write(&row).map_err(|e| io("writing metrics.csv", e))?;
+                per_dim
+                    .add(row.steps, row.updates, &stats.per_dim)
+                    .map_err(|e| io("writing per_dim.csv", e))?;
                 let scalars = crate::tensorboard::scalars(&row, self.algo.stat_names(), &episodes);
                 events
                     .write(row.steps, &scalars)

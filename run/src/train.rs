@@ -124,6 +124,9 @@ pub fn start_learner(
         let csv = out.join("metrics.csv");
         let (dropped, newest) = saver_learner::metrics::truncate_after(&csv, start.steps)
             .with_context(|| format!("reading {}", csv.display()))?;
+        let per_dim = out.join("per_dim.csv");
+        saver_learner::metrics::truncate_after(&per_dim, start.steps)
+            .with_context(|| format!("reading {}", per_dim.display()))?;
         eprintln!(
             "resuming {} from its checkpoint: version {}, {} steps, {} episodes{}",
             out.display(),

@@ -119,6 +119,7 @@ impl Algorithm for A2c {
                 ("log_std_mean", log_std_mean),
                 ("grad_norm", grad_norm),
             ],
+            per_dim: Vec::new(),
         })
     }
 

@@ -3,6 +3,7 @@
 
 mod a2c;
 pub(crate) mod fused;
+pub mod per_dim;
 mod saver;
 mod saver_grad;
 
@@ -28,6 +29,9 @@ use std::sync::Arc;
 pub struct UpdateStats {
     /// (name, value) pairs.
     pub values: Vec<(&'static str, f32)>,
+    /// Per-dimension diagnostics (name, one value per coordinate or action entry;
+    /// [`per_dim`]), for the run's per_dim.csv; empty where an algorithm has none.
+    pub per_dim: Vec<(&'static str, Vec<f32>)>,
 }
 
 impl UpdateStats {

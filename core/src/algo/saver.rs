@@ -53,6 +53,8 @@ pub struct Saver {
     bootstrap_timeout: bool,
     /// Loss constants.
     cfg: SaverConfig,
+    /// The tanh bound of μ, if any (for the saturation diagnostic).
+    mu_bound: Option<f64>,
     /// Device.
     dev: Device,
 }
@@ -128,6 +130,7 @@ impl Saver {
             gamma: config.gamma as f32,
             bootstrap_timeout: config.bootstrap_timeout,
             cfg: config.saver,
+            mu_bound: config.head.mu_bound,
             dev: dev.clone(),
         })
     }
@@ -173,7 +176,20 @@ impl Algorithm for Saver {
             d,
             self.gamma,
         );
-        let returns = Tensor::from_vec(returns, (b, d), &self.dev)?;
+        let value_host: Vec<f32> = value.flatten_all()?.to_vec1()?;
+        let per_dim_of = |mu: &Tensor, log_std: &Tensor| -> Result<_> {
+            Ok(super::per_dim::per_dim_stats(
+                &returns,
+                &value_host,
+                &batch.vector_reward,
+                &mu.flatten_all()?.to_vec1::<f32>()?,
+                &log_std.flatten_all()?.to_vec1::<f32>()?,
+                d,
+                self.mu_bound,
+            ))
+        };
+        let returns_host = returns.clone();
+        let returns = Tensor::from_vec(returns_host, (b, d), &self.dev)?;
         let mut advantage = (&returns - &value)?.detach();
         if self.cfg.adv_norm {
             let mut a = advantage.flatten_all()?.to_vec1::<f32>()?;
@@ -228,6 +244,7 @@ impl Algorithm for Saver {
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
+        let per_dim = per_dim_of(&mu, &log_std)?;
         Ok(UpdateStats {
             values: vec![
                 ("actor_loss", actor),
@@ -237,6 +254,7 @@ impl Algorithm for Saver {
                 ("log_std_mean", log_std_mean),
                 ("grad_norm", grad_norm),
             ],
+            per_dim,
         })
     }
 
