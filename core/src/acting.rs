@@ -63,8 +63,14 @@ pub fn family_from_wire(
         "gaussian-mlp" => Ok(Arc::new(crate::nets::Gaussian::from_params(
             layout, params,
         )?)),
+        "quantile-mlp" => {
+            let spread = params.get("spread").copied().ok_or_else(|| {
+                crate::CoreError::Config("quantile-mlp policy: parameter spread is missing".into())
+            })?;
+            Ok(Arc::new(crate::nets::QuantileFamily::new(layout, spread)?))
+        }
         other => Err(crate::CoreError::Config(format!(
-            "policy family {other:?} is not one this build knows (gaussian-mlp)"
+            "policy family {other:?} is not one this build knows (gaussian-mlp, quantile-mlp)"
         ))),
     }
 }

@@ -7,14 +7,11 @@
 //!
 //! Two implementations of one batch's gradient: [`pcpn_loss`] through candle autograd
 //! (the reference, and the path on other devices), and [`pcpn_grads`], the hand-written
-//! path on the CPU: the trunk x → 256 → d·128 once per sample in candle, the per-dimension
-//! heads over the B·K·d quantile rows in SAVER's fused blocks (`algo/fused.rs`, with
-//! advantages of 1, no monotonic penalty, and the heads' weight gradients), never
-//! materialising anything B·K·d·128 large; the trunk's gradient from the surrogate Σ z·dz.
-//! A test holds the two to each other.
+//! path on the CPU ([`quantile_net_grads`], algo/qnet_grad.rs: the trunk once per sample
+//! in candle, the heads over the B·K·d quantile rows in SAVER's fused blocks, with
+//! weights of 1 and no monotonic penalty). A test holds the two to each other.
 
-use crate::algo::fused::{self, Heads};
-use crate::algo::{tau_tensors, GradPath, Loss};
+use crate::algo::{quantile_net_grads, tau_tensors, GradPath, Loss};
 use crate::config::PretrainConfig;
 use crate::env::{EnvLayout, EnvSpec};
 use crate::loss::quantile_loss;
@@ -131,38 +128,20 @@ pub fn pcpn_grads(
     taus: &[f32],
     threads: usize,
 ) -> Result<(f32, GradStore)> {
-    let (b, d) = (s.n, pcpn.dim());
-    let dev = pcpn.l0.w.device();
-    let x = Tensor::from_slice(&s.x, (b, s.x.len() / b), dev)?;
-    let h = pcpn.l0.forward(&x)?.relu()?; // [B, 256]
-    let z = pcpn.l1.forward(&h)?.relu()?; // [B, d·128]
-    let zv: Vec<f32> = z.flatten_all()?.to_vec1()?;
-    let ones = vec![1.0f32; b * d];
-    let inputs = fused::Inputs {
-        z: &zv,
-        state_delta: &s.delta,
-        advantage: &ones,
+    let x = Tensor::from_slice(&s.x, (s.n, s.x.len() / s.n), pcpn.l0.w.device())?;
+    let ones = vec![1.0f32; s.delta.len()];
+    let g = quantile_net_grads(
+        pcpn,
+        &x,
+        &s.delta,
+        &ones,
         taus,
-        b,
-        k: taus.len() / (b * d),
-        d,
-    };
-    let out = fused::run(&Heads::of(pcpn)?, &inputs, Loss::PRETRAIN, threads, true);
-    // The trunk: d(Σ z·dz)/dθ = dL/dθ for θ before z, with dz held constant.
-    let dz = Tensor::from_vec(out.dz, z.shape(), dev)?;
-    let mut grads = (z * dz)?.sum_all()?.backward()?;
-    let g = out
-        .head_grads
-        .ok_or_else(|| CoreError::Config("the fused blocks gave no head gradients".into()))?;
-    for (var, values) in [
-        (&pcpn.w2, g.w2),
-        (&pcpn.b2, g.b2),
-        (&pcpn.w3, g.w3),
-        (&pcpn.b3, g.b3),
-    ] {
-        grads.insert(var, Tensor::from_vec(values, var.shape(), dev)?);
-    }
-    Ok((out.actor_loss, grads))
+        Loss::PRETRAIN,
+        0.0,
+        threads,
+        None,
+    )?;
+    Ok((g.quantile_loss, g.grads))
 }
 
 /// Pretrains a PCPN step by step.

@@ -4,7 +4,8 @@
 //!
 //! FLOPs counted (multiply-add = 2): a trained dense layer costs 3× its forward
 //! (forward, input gradient, weight gradient); the frozen PCPN costs 2× its forward
-//! (forward and input gradient: no weight gradient is needed). Pretraining trains the
+//! (forward and input gradient: no weight gradient is needed). QRRL's quantile policy
+//! is trained, so its layers cost 3x, plus its embedding. Pretraining trains the
 //! PCPN, so its layers cost 3× their forward, plus the cosine embedding and its product
 //! with the chunks (one multiply each per row and feature).
 
@@ -94,6 +95,15 @@ pub fn update_flops(algo: Algo, l: &EnvLayout, b: usize, t: usize, k: usize) -> 
             let heads = d as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
             let embed = (b * k * d * PCPN_CHUNK) as f64;
             agent + critic + 2.0 * (shared + heads + embed)
+        }
+        Algo::Qrrl => {
+            // The quantile policy is trained (3x its layers) over the actions' dims.
+            let c = l.continuous;
+            let critic = 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, 1]);
+            let shared = mlp_flops(b, &[l.obs_dim, PCPN_HIDDEN, c * PCPN_CHUNK]);
+            let heads = c as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
+            let embed = (b * k * c * PCPN_CHUNK) as f64;
+            critic + 3.0 * (shared + heads) + 2.0 * embed
         }
     }
 }
@@ -244,7 +254,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "of peak"
     );
     let mut single = Vec::new();
-    for algo in [Algo::A2c, Algo::Saver] {
+    for algo in [Algo::A2c, Algo::Saver, Algo::Qrrl] {
         for &d in &args.dims {
             let (s, flops, n) = time_update(algo, d, args.seconds, 1)?;
             if algo == Algo::Saver {

@@ -11,6 +11,7 @@ pub mod config;
 pub mod diagnose;
 pub mod eval;
 pub mod figures;
+pub mod histogram;
 pub mod output;
 pub mod plot;
 pub mod pretrain;

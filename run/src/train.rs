@@ -76,6 +76,23 @@ pub fn train(
     let outcome = train_with(config, out, pcpn, stop, show)?;
     let png = out.join("learning_curve.png");
     plot_runs(&[out.to_path_buf()], &png).context("drawing the learning curve")?;
+    let actions = crate::histogram::write_for_run(out).context("drawing the action histogram")?;
+    if show && config.env.kind() == Some(saver_core::env::EnvKind::Bandit) {
+        let a: Vec<f32> = actions.iter().map(|a| a[0]).collect();
+        let near = |at: f32| 100.0 * crate::histogram::share_near(&a, at, 0.1);
+        let reward = a
+            .iter()
+            .map(|&x| saver_core::env::bandit_reward(x) as f64)
+            .sum::<f64>()
+            / a.len().max(1) as f64;
+        crate::out!(
+            "learned actions (4,000 draws): {:.1} % within 0.1 of -0.75, {:.1} % of +0.75, \
+             {:.1} % of the decoy 0; mean reward {reward:.3}",
+            near(-0.75),
+            near(0.75),
+            near(0.0)
+        );
+    }
     Ok(outcome)
 }
 
@@ -280,5 +297,9 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
     crate::out!("  config      {}", out.join("config.toml").display());
     crate::out!("  metrics     {}", o.metrics.display());
     crate::out!("  plot        {}", out.join("learning_curve.png").display());
+    crate::out!(
+        "  actions     {}",
+        out.join("action_histogram.png").display()
+    );
     crate::out!("  checkpoint  {}", o.checkpoint.display());
 }

@@ -84,7 +84,13 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
         Algo::A2c,
         20 * 4 * 8,
     );
-    for mut config in [saver, a2c] {
+    // QRRL on angle d = 2: its quantile policy's τ payload crosses the wire too.
+    let qrrl = RunConfig::recommended(
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        Algo::Qrrl,
+        20 * 4 * 8,
+    );
+    for mut config in [saver, a2c, qrrl] {
         config.actors = 4;
         let pcpn = (config.algo == Algo::Saver)
             .then(|| random_pcpn(&config.env, &candle_core::Device::Cpu).unwrap());

@@ -7,7 +7,7 @@
 //! cos[r, i] = cos(π·i·τ_r)                  (Chebyshev, embedding.rs)
 //! e[r, i]   = z[b(r), j·128 + i] · cos[r, i]
 //! u         = relu(e·W2_j + b2_j)           (gemm, R×128×64)
-//! q[r]      = u[r]·w3_j + b3_j
+//! q[r]      = u[r]·w3_j + b3_j (+ s·(2τ_r − 1): QRRL's base quantile function)
 //! dq        = dL/dq (quantile loss and monotonic pairs, one transition's K rows at a time)
 //! du        = dq ⊗ w3_j ⊙ 1[u > 0]
 //! de        = du·W2_jᵀ                      (gemm, R×64×128)
@@ -122,6 +122,9 @@ pub struct Inputs<'a> {
     pub advantage: &'a [f32],
     /// τ [d, B, K].
     pub taus: &'a [f32],
+    /// s of a fixed base quantile function s·(2τ − 1) added to every output (standalone
+    /// QRRL's policy; 0 for the PCPN). Its gradient is zero: only q's value moves.
+    pub tau_base: f32,
     /// B, K, d.
     pub b: usize,
     pub k: usize,
@@ -286,11 +289,16 @@ fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> UnitOut {
     s.u.resize(rows * h, 0.0);
     matmul(&mut s.u, &s.e, w2, (rows, w, h), (false, false));
     s.q.clear();
-    for urow in s.u.chunks_exact_mut(h) {
+    for (urow, &tau) in s.u.chunks_exact_mut(h).zip(taus) {
         for (v, &bias) in urow.iter_mut().zip(b2) {
             *v = (*v + bias).max(0.0);
         }
-        s.q.push(dot(urow, w3) + b3);
+        let base = if x.tau_base == 0.0 {
+            0.0
+        } else {
+            x.tau_base * (2.0 * tau - 1.0)
+        };
+        s.q.push(dot(urow, w3) + b3 + base);
     }
 
     s.dq.clear();

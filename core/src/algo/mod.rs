@@ -4,11 +4,15 @@
 mod a2c;
 pub(crate) mod fused;
 pub mod per_dim;
+mod qnet_grad;
+mod qrrl;
 mod saver;
 mod saver_grad;
 
 pub use a2c::A2c;
 pub use fused::{threads_for, Loss};
+pub use qnet_grad::{quantile_net_grads, NetGrads};
+pub use qrrl::{qrrl_actor_losses, Qrrl};
 pub use saver::{tau_tensors, GradPath, Saver};
 pub use saver_grad::{policy_grads, saver_actor_losses, InputGrad, PcpnGrad, SaverLosses};
 
@@ -134,6 +138,7 @@ pub fn entry(algo: Algo) -> Entry {
     match algo {
         Algo::A2c => a2c::ENTRY,
         Algo::Saver => saver::ENTRY,
+        Algo::Qrrl => qrrl::ENTRY,
     }
 }
 

@@ -105,6 +105,7 @@ impl PcpnGrad {
             state_delta,
             advantage,
             taus,
+            tau_base: 0.0,
             b,
             k: taus.len() / (b * d),
             d,

@@ -13,14 +13,17 @@ pub enum Algo {
     Saver,
     /// The scalar-reward A2C baseline.
     A2c,
+    /// Standalone QRRL (paper Section 3): the policy is an implicit quantile network,
+    /// any action distribution, multi-modal included; scalar reward, no PCPN.
+    Qrrl,
 }
 
 impl Algo {
-    /// Parses `saver` or `a2c`.
+    /// Parses `saver`, `a2c` or `qrrl`.
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
             CoreError::Config(format!(
-                "algo: unknown algorithm {s:?} (expected saver or a2c)"
+                "algo: unknown algorithm {s:?} (expected saver, a2c or qrrl)"
             ))
         })
     }
@@ -29,6 +32,7 @@ impl Algo {
         match self {
             Self::Saver => "saver",
             Self::A2c => "a2c",
+            Self::Qrrl => "qrrl",
         }
     }
 }

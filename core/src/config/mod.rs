@@ -46,6 +46,12 @@ pub struct SaverConfig {
     /// angle that freezes a pair's direction at 0 or π, so one of its coordinates can
     /// no longer move. 0: off (the paper).
     pub mu_raw_penalty: f64,
+    /// Standalone QRRL: half-width s of the fixed base quantile function s·(2τ − 1)
+    /// added to the policy network's output, so that the initial policy is U(−s, s)
+    /// (the network starts near 0 everywhere, which would not explore). Not used by
+    /// SAVER.
+    #[serde(default)]
+    pub qrrl_spread: f64,
 }
 
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
@@ -113,6 +119,13 @@ pub struct RunConfig {
 /// 3e-4 before: at d = 16 it left SAVER at a mean length of 1000 for 2.56 M steps,
 /// where 1e-3 moves every coordinate toward the goal ~2x as fast (results/README.md).
 pub const RECOMMENDED_SAVER_LR: f64 = 1e-3;
+/// QRRL's [`SaverConfig::qrrl_spread`] by default: the initial policy is U(−1, 1), the
+/// env's whole action range (with 0.637, the spread of the Gaussian's initial σ = e⁻¹,
+/// the bandit's optima at ±0.75 lay outside it and every seed settled on the decoy;
+/// docs/ALGORITHM.md §14).
+pub const QRRL_SPREAD: f64 = 1.0;
+/// Standalone QRRL's learning rate by default (with Adam; docs/ALGORITHM.md §14).
+pub const RECOMMENDED_QRRL_LR: f64 = 1e-3;
 /// PCPN pretraining batches by default (the paper's: 100,000 for angle).
 pub const RECOMMENDED_PRETRAIN_BATCHES: u64 = 5_000;
 /// Async mode's policy lag unless set.
@@ -137,7 +150,12 @@ impl RunConfig {
             lr_decay: false,
             grad_clip: None,
             head: HeadConfig::FAITHFUL,
-            max_episode_steps: 1000,
+            // The bandit is one step long; the paper's envs stop at 1000.
+            max_episode_steps: if env.kind() == Some(crate::env::EnvKind::Bandit) {
+                1
+            } else {
+                1000
+            },
             bootstrap_timeout: false,
             value_coef: 0.5,
             saver: SaverConfig {
@@ -148,6 +166,7 @@ impl RunConfig {
                 adv_norm: false,
                 adv_norm_joint: false,
                 mu_raw_penalty: 0.0,
+                qrrl_spread: QRRL_SPREAD,
             },
             pretrain: PretrainConfig::paper(preset_or_angle(env)),
             pcpn_sha256: None,
@@ -164,6 +183,13 @@ impl RunConfig {
     pub fn recommended(env: &EnvSpec, algo: Algo, steps: u64) -> Self {
         let mut c = Self::paper(env, algo, steps);
         c.pretrain = PretrainConfig::recommended(preset_or_angle(env));
+        if algo == Algo::Qrrl {
+            // Advantages stay raw: normalised, the noise of equally good actions is
+            // scaled up and drifts the bandit's two modes into one (2 of 5 seeds
+            // against 0 of 5 raw; docs/ALGORITHM.md §14).
+            c.optimizer = OptimizerKind::Adam;
+            c.lr = RECOMMENDED_QRRL_LR;
+        }
         if algo == Algo::Saver {
             c.optimizer = OptimizerKind::Adam;
             c.lr = RECOMMENDED_SAVER_LR;
@@ -256,12 +282,25 @@ impl RunConfig {
             ("saver.lambda_mon", s.lambda_mon),
             ("saver.lambda_critic", s.lambda_critic),
             ("saver.mu_raw_penalty", s.mu_raw_penalty),
+            ("saver.qrrl_spread", s.qrrl_spread),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("{v} must be finite and >= 0"));
             }
         }
         self.pretrain.validate()?;
+        if self.env.kind() == Some(crate::env::EnvKind::Bandit) && self.max_episode_steps != 1 {
+            return bad(
+                "max_episode_steps",
+                format!(
+                    "the bandit's episodes are one step long; got {}",
+                    self.max_episode_steps
+                ),
+            );
+        }
+        if self.algo == Algo::Qrrl {
+            crate::nets::QuantileFamily::new(self.env.layout(), self.saver.qrrl_spread)?;
+        }
         if self.algo != Algo::Saver && self.pcpn_sha256.is_some() {
             return bad(
                 "pcpn_sha256",

@@ -31,9 +31,14 @@ pub struct PretrainConfig {
 /// Held-out batches of the pretraining report (fresh samples, fixed τ stream).
 pub const PRETRAIN_EVAL_BATCHES: usize = 16;
 
-/// The paper's learning rate for an env and algorithm (docs/ALGORITHM.md §12).
+/// The paper's learning rate for an env and algorithm (docs/ALGORITHM.md §12). The
+/// paper does not run standalone QRRL; its "paper" settings are A2C's (the same
+/// actor-critic loop, optimiser and rate).
 pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
     match (kind, algo) {
+        (kind, Algo::Qrrl) => paper_lr(kind, Algo::A2c),
+        // Not in the paper: angle's rates.
+        (EnvKind::Bandit, algo) => paper_lr(EnvKind::Angle, algo),
         (EnvKind::Angle, Algo::Saver) => 0.01,
         (EnvKind::Angle, Algo::A2c) => 0.0003,
         (EnvKind::Select, Algo::Saver) => 0.01,
@@ -53,7 +58,7 @@ pub fn preset_or_angle(env: &EnvSpec) -> EnvKind {
 pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
     match kind {
         EnvKind::Angle => 100_000,
-        EnvKind::Select | EnvKind::Arm => 10_000,
+        EnvKind::Select | EnvKind::Arm | EnvKind::Bandit => 10_000,
     }
 }
 

@@ -8,11 +8,13 @@
 
 mod angle;
 mod arm;
+mod bandit;
 mod select;
 mod spec;
 
 pub use angle::Angle;
 pub use arm::{hand, wrap_angle, Arm};
+pub use bandit::{bandit_reward, Bandit};
 pub use select::Select;
 pub use spec::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
 

@@ -21,14 +21,17 @@ pub enum EnvKind {
     Select,
     /// Two-joint robot arm reaching a goal (paper Fig. 5).
     Arm,
+    /// One-step continuous bandit: two narrow optimal actions and a broad decoy (d = 1;
+    /// standalone QRRL's multi-modality check, not in the paper).
+    Bandit,
 }
 
 impl EnvKind {
-    /// Parses `angle`, `select` or `arm`.
+    /// Parses `angle`, `select`, `arm` or `bandit`.
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
             CoreError::Config(format!(
-                "env: unknown environment {s:?} (expected angle, select or arm)"
+                "env: unknown environment {s:?} (expected angle, select, arm or bandit)"
             ))
         })
     }
@@ -39,6 +42,7 @@ impl EnvKind {
             Self::Angle => "angle",
             Self::Select => "select",
             Self::Arm => "arm",
+            Self::Bandit => "bandit",
         }
     }
 
@@ -66,6 +70,13 @@ impl EnvKind {
                 aligned_start: 4,
                 aligned_dim: 2,
             },
+            Self::Bandit => EnvLayout {
+                obs_dim: 1,
+                continuous: 1,
+                choices: 0,
+                aligned_start: 0,
+                aligned_dim: 1,
+            },
         }
     }
 
@@ -90,6 +101,12 @@ impl EnvKind {
                     max_change: 0.19,
                 }
             }
+            // p in [0, 1]; the one step moves it by R(a) <= 1.
+            Self::Bandit => EnvBounds {
+                obs_low: vec![0.0],
+                obs_high: vec![1.0],
+                max_change: 1.0,
+            },
         }
     }
 }
@@ -176,6 +193,9 @@ impl EnvSpec {
             )),
             EnvKind::Arm if dim != 2 => Err(CoreError::Config(format!(
                 "dim: the arm's hand moves in 2 dimensions, got dim {dim}"
+            ))),
+            EnvKind::Bandit if dim != 1 => Err(CoreError::Config(format!(
+                "dim: the bandit has one action and one coordinate, got dim {dim}"
             ))),
             _ if dim > MAX_ENV_DIM => Err(CoreError::Config(format!(
                 "dim: {dim} is larger than the supported {MAX_ENV_DIM}"
@@ -285,6 +305,7 @@ impl EnvSpec {
             Some(EnvKind::Angle) => Ok(Box::new(Angle::new(self.dim(), max_steps))),
             Some(EnvKind::Select) => Ok(Box::new(Select::new(self.dim(), max_steps))),
             Some(EnvKind::Arm) => Ok(Box::new(Arm::new(max_steps))),
+            Some(EnvKind::Bandit) => Ok(Box::new(super::Bandit::new())),
             None => Err(CoreError::Config(format!(
                 "{self} is not a preset of this build: its actors bring the env"
             ))),

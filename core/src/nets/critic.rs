@@ -1,5 +1,5 @@
-//! The QRRL vector critic: x = [obs, μ, log σ] → 256 → 128 → 64 → d (a value per
-//! state-aligned dimension).
+//! The critics: SAVER's vector critic x = [obs, μ, log σ] → 256 → 128 → 64 → d (a value
+//! per state-aligned dimension), and standalone QRRL's obs → 256 → 128 → 64 → 1.
 
 use super::{mlp_forward, Linear, ParamSet, TRUNK};
 use crate::env::EnvLayout;
@@ -16,16 +16,26 @@ pub struct Critic {
 }
 
 impl Critic {
-    /// A freshly initialised critic.
+    /// A freshly initialised SAVER critic.
     pub fn new(layout: &EnvLayout, rng: &mut SaverRng, dev: &Device) -> Result<Self> {
+        Self::with_sizes(layout.pcpn_input_dim(), layout.aligned_dim, rng, dev)
+    }
+
+    /// A freshly initialised critic of `input` inputs and `outputs` values.
+    pub fn with_sizes(
+        input: usize,
+        outputs: usize,
+        rng: &mut SaverRng,
+        dev: &Device,
+    ) -> Result<Self> {
         let mut params = ParamSet::default();
         let mut layers = Vec::new();
-        let mut fan_in = layout.pcpn_input_dim();
+        let mut fan_in = input;
         for (i, &h) in TRUNK.iter().enumerate() {
             layers.push(params.linear(&format!("critic.l{i}"), fan_in, h, rng, dev)?);
             fan_in = h;
         }
-        layers.push(params.linear("critic.out", fan_in, layout.aligned_dim, rng, dev)?);
+        layers.push(params.linear("critic.out", fan_in, outputs, rng, dev)?);
         Ok(Self { layers, params })
     }
 

@@ -5,14 +5,16 @@ mod agent;
 mod critic;
 mod pcpn;
 mod policy;
+mod quantile_policy;
 
 pub use agent::{Agent, AgentOut, HeadConfig};
 pub use critic::Critic;
-pub use pcpn::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
+pub use pcpn::{quantile_net_shapes, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
 pub use policy::{
     gaussian_log_prob, sample_softmax as sample_softmax_pub, slack, Gaussian, Policy,
     ACTION_SIGMAS, UNBOUNDED_LOG_STD, UNBOUNDED_MU,
 };
+pub use quantile_policy::{QuantileFamily, QuantilePolicy, QUANTILE_PREFIX};
 
 use crate::rng::{glorot_uniform, SaverRng};
 use crate::{CoreError, Result};

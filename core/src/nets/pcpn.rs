@@ -2,6 +2,9 @@
 //! split into d chunks; for dim j with its own τ_j: h_j = chunk_j ⊙ cos(π·i·τ_j),
 //! i = 1..128 → 64 (ReLU) → 1, with separate weights per dim. Output: the τ_j-quantile
 //! of the change of state-aligned coordinate j.
+//!
+//! The architecture is an implicit quantile network of any input and output width:
+//! QRRL's policy (algo/qrrl.rs) is one over the observation, one output per action dim.
 
 use super::{Linear, ParamSet};
 use crate::env::EnvLayout;
@@ -34,34 +37,35 @@ pub struct Pcpn {
     pub(crate) b3: Tensor,
     /// d.
     pub(crate) dim: usize,
+    /// Prefix of its tensor names (`pcpn`; `agent.q` for QRRL's policy).
+    prefix: String,
 }
 
-/// Names of the PCPN tensors, in the order of [`pcpn_shapes`].
-const PCPN_NAMES: [&str; 8] = [
-    "pcpn.l0.w",
-    "pcpn.l0.b",
-    "pcpn.l1.w",
-    "pcpn.l1.b",
-    "pcpn.head.w0",
-    "pcpn.head.b0",
-    "pcpn.head.w1",
-    "pcpn.head.b1",
+/// Names of the tensors of a quantile network under its prefix (`pcpn` for the PCPN), in
+/// the order of [`quantile_net_shapes`].
+const NET_NAMES: [&str; 8] = [
+    "l0.w", "l0.b", "l1.w", "l1.b", "head.w0", "head.b0", "head.w1", "head.b1",
 ];
 
-/// Names and shapes of the PCPN tensors for a layout, in a fixed order.
-pub fn pcpn_shapes(layout: &EnvLayout) -> Vec<(&'static str, Vec<usize>)> {
-    let (i, d) = (layout.pcpn_input_dim(), layout.aligned_dim);
+/// Names and shapes of the tensors of a quantile network with `input` inputs and `dim`
+/// outputs under `prefix`, in a fixed order. The PCPN is one (`pcpn`, [obs, μ, log σ]
+/// in, d out); QRRL's policy is another (`agent.q`, obs in, one output per action dim).
+pub fn quantile_net_shapes(prefix: &str, input: usize, dim: usize) -> Vec<(String, Vec<usize>)> {
     let shapes = [
-        vec![i, PCPN_HIDDEN],
+        vec![input, PCPN_HIDDEN],
         vec![PCPN_HIDDEN],
-        vec![PCPN_HIDDEN, d * PCPN_CHUNK],
-        vec![d * PCPN_CHUNK],
-        vec![d, PCPN_CHUNK, PCPN_HEAD_HIDDEN],
-        vec![d, 1, PCPN_HEAD_HIDDEN],
-        vec![d, PCPN_HEAD_HIDDEN, 1],
-        vec![d, 1, 1],
+        vec![PCPN_HIDDEN, dim * PCPN_CHUNK],
+        vec![dim * PCPN_CHUNK],
+        vec![dim, PCPN_CHUNK, PCPN_HEAD_HIDDEN],
+        vec![dim, 1, PCPN_HEAD_HIDDEN],
+        vec![dim, PCPN_HEAD_HIDDEN, 1],
+        vec![dim, 1, 1],
     ];
-    PCPN_NAMES.into_iter().zip(shapes).collect()
+    NET_NAMES
+        .iter()
+        .map(|n| format!("{prefix}.{n}"))
+        .zip(shapes)
+        .collect()
 }
 
 impl Pcpn {
@@ -72,11 +76,24 @@ impl Pcpn {
         dev: &Device,
         params: &mut ParamSet,
     ) -> Result<Self> {
+        let (i, d) = (layout.pcpn_input_dim(), layout.aligned_dim);
+        Self::init_net("pcpn", i, d, rng, dev, params)
+    }
+
+    /// A trainable quantile network of this architecture under `prefix`, with `input`
+    /// inputs and `dim` outputs (fresh Glorot weights, zero biases).
+    pub fn init_net(
+        prefix: &str,
+        input: usize,
+        dim: usize,
+        rng: &mut SaverRng,
+        dev: &Device,
+        params: &mut ParamSet,
+    ) -> Result<Self> {
         let mut t = Vec::new();
-        for (name, shape) in pcpn_shapes(layout) {
+        for (name, shape) in quantile_net_shapes(prefix, input, dim) {
             let n: usize = shape.iter().product();
-            let is_bias = name.ends_with(".b") || name.starts_with("pcpn.head.b");
-            let values = if is_bias {
+            let values = if name.ends_with(".b") || name.contains(".head.b") {
                 vec![0.0; n]
             } else if shape.len() == 3 {
                 // One Glorot draw per dim with the head layer's own fans.
@@ -88,31 +105,42 @@ impl Pcpn {
             } else {
                 glorot_uniform(rng, shape[0], shape[1])
             };
-            t.push(params.var(name, values, &shape, dev)?);
+            t.push(params.var(&name, values, &shape, dev)?);
         }
-        Self::from_ordered(t, layout.aligned_dim)
+        Self::from_ordered(t, dim, prefix)
     }
 
     /// A frozen PCPN from named tensors (checked against the layout's shapes).
     pub fn frozen(layout: &EnvLayout, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<Self> {
+        let (i, d) = (layout.pcpn_input_dim(), layout.aligned_dim);
+        Self::frozen_net("pcpn", i, d, get)
+    }
+
+    /// A frozen quantile network under `prefix` from named tensors (shapes checked).
+    pub fn frozen_net(
+        prefix: &str,
+        input: usize,
+        dim: usize,
+        get: &dyn Fn(&str) -> Option<Tensor>,
+    ) -> Result<Self> {
         let mut t = Vec::new();
-        for (name, shape) in pcpn_shapes(layout) {
-            let x = get(name)
-                .ok_or_else(|| CoreError::Checkpoint(format!("PCPN lacks tensor {name}")))?;
+        for (name, shape) in quantile_net_shapes(prefix, input, dim) {
+            let x = get(&name)
+                .ok_or_else(|| CoreError::Checkpoint(format!("{prefix} lacks tensor {name}")))?;
             if x.dims() != shape.as_slice() {
                 return Err(CoreError::Checkpoint(format!(
-                    "PCPN tensor {name} has shape {:?}, this env needs {shape:?}",
+                    "tensor {name} has shape {:?}, this env needs {shape:?}",
                     x.dims()
                 )));
             }
             t.push(x.detach());
         }
-        Self::from_ordered(t, layout.aligned_dim)
+        Self::from_ordered(t, dim, prefix)
     }
 
-    fn from_ordered(t: Vec<Tensor>, dim: usize) -> Result<Self> {
+    fn from_ordered(t: Vec<Tensor>, dim: usize, prefix: &str) -> Result<Self> {
         let mut it = t.into_iter();
-        let mut next = || it.next().expect("pcpn_shapes lists 8 tensors");
+        let mut next = || it.next().expect("quantile_net_shapes lists 8 tensors");
         Ok(Self {
             l0: Linear {
                 w: next(),
@@ -127,6 +155,7 @@ impl Pcpn {
             w3: next(),
             b3: next(),
             dim,
+            prefix: prefix.to_string(),
         })
     }
 
@@ -135,10 +164,10 @@ impl Pcpn {
         let all = [
             &self.l0.w, &self.l0.b, &self.l1.w, &self.l1.b, &self.w2, &self.b2, &self.w3, &self.b3,
         ];
-        PCPN_NAMES
+        NET_NAMES
             .iter()
             .zip(all)
-            .map(|(n, t)| Ok((n.to_string(), t.copy()?.detach())))
+            .map(|(n, t)| Ok((format!("{}.{n}", self.prefix), t.copy()?.detach())))
             .collect()
     }
 

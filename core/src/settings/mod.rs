@@ -79,6 +79,7 @@ impl EnvSettings {
         let kind = self.kind.unwrap_or(DEFAULT_ENV);
         let dim = self.dim.unwrap_or(match kind {
             EnvKind::Arm => 2,
+            EnvKind::Bandit => 1,
             _ => DEFAULT_DIM,
         });
         EnvSpec::new(kind, dim)
@@ -135,6 +136,8 @@ pub struct SaverSettings {
     pub adv_norm_joint: Option<bool>,
     #[arg(long, allow_hyphen_values = true, help = help("SAVER: weight of the penalty on the mean head's raw output beyond ±2 (0: off)", "saver.mu_raw_penalty"))]
     pub mu_raw_penalty: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
+    pub qrrl_spread: Option<f64>,
 }
 
 /// Every setting of a run, each optional: flags, or a `--config` file (the same names

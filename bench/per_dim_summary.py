@@ -1,0 +1,54 @@
+#!/usr/bin/env python3
+"""Summarises a SAVER run's per_dim.csv (written by the learner, see
+core/src/algo/per_dim.rs) over windows of steps: per coordinate j the critic's
+explained variance 1 - mse/var(R), the raw advantage's std and its correlation with
+the step's own reward; per action entry the share of mu at the tanh bound and the mean
+log sigma. Next to it, the run's mean episode length from metrics.csv.
+
+    bench/per_dim_summary.py RUN_DIR [--every 100000]
+"""
+import argparse
+import csv
+import os
+
+
+def rows(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("run")
+    ap.add_argument("--every", type=int, default=100_000)
+    args = ap.parse_args()
+    per_dim = rows(os.path.join(args.run, "per_dim.csv"))
+    metrics = rows(os.path.join(args.run, "metrics.csv"))
+    d = sum(1 for k in per_dim[0] if k.startswith("critic_mse_"))
+    m = sum(1 for k in per_dim[0] if k.startswith("mu_sat_"))
+    windows = {}
+    for r in per_dim:
+        windows.setdefault((int(r["steps"]) - 1) // args.every, []).append(r)
+    length = {}
+    for r in metrics:
+        if r["mean_ep_len_100"]:
+            length[(int(r["steps"]) - 1) // args.every] = float(r["mean_ep_len_100"])
+
+    def mean(rs, key):
+        return sum(float(r[key]) for r in rs) / len(rs)
+
+    fmt = lambda xs, f: " ".join(f.format(x) for x in xs)
+    print(f"{args.run}: d = {d}, {m} mean entries; per window of {args.every} steps")
+    for w in sorted(windows):
+        rs = windows[w]
+        ev = [1 - mean(rs, f"critic_mse_{j}") / max(mean(rs, f"return_var_{j}"), 1e-12) for j in range(d)]
+        print(f"\nsteps <= {(w + 1) * args.every}: mean length {length.get(w, float('nan')):.1f}")
+        print("  critic explained var  " + fmt(ev, "{:6.2f}"))
+        print("  advantage std         " + fmt([mean(rs, f"adv_std_{j}") for j in range(d)], "{:6.4f}"))
+        print("  corr(adv, own reward) " + fmt([mean(rs, f"adv_reward_corr_{j}") for j in range(d)], "{:6.2f}"))
+        print("  mu at the bound       " + fmt([mean(rs, f"mu_sat_{i}") for i in range(m)], "{:6.2f}"))
+        print("  log sigma             " + fmt([mean(rs, f"log_std_{i}") for i in range(m)], "{:6.2f}"))
+
+
+if __name__ == "__main__":
+    main()
