@@ -181,13 +181,7 @@ impl Pretrainer {
             rng,
             batch_size: p.batch_size,
             k: p.quantiles,
-            // The fused blocks run on the host; on a GPU candle's graph keeps
-            // everything on the device.
-            path: if dev.is_cpu() {
-                GradPath::Fast
-            } else {
-                GradPath::Reference
-            },
+            path: GradPath::for_device(dev),
             threads: 0,
             dev: dev.clone(),
         })

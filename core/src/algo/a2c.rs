@@ -2,13 +2,12 @@
 //! scalar reward = sum of the vector reward, shared trunk, entropy β = 0.
 
 use super::{
-    check_finite, matrix, policy_diagnostics, timeout_ends, update_rows, Algorithm, UpdateStats,
+    check_finite, matrix, policy_diagnostics, scalar_returns, update_rows, Algorithm, UpdateStats,
 };
 use crate::config::RunConfig;
 use crate::env::EnvLayout;
 use crate::nets::{gaussian_log_prob, Agent};
 use crate::optim::Optimizer;
-use crate::returns::n_step_returns;
 use crate::rng::{rng_for, streams};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
@@ -80,22 +79,12 @@ impl Algorithm for A2c {
     }
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
-        let (b, t, o) = (batch.len(), batch.n_traj, self.layout.obs_dim);
+        let (b, o) = (batch.len(), self.layout.obs_dim);
         let (rows, k) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
         let out = self.agent.forward(&rows)?;
         let value_all = out.value.expect("A2C agent has a value head");
         let value = value_all.narrow(0, 0, b)?; // [B]
-        let bootstrap = value_all.narrow(0, b, t)?.to_vec1::<f32>()?; // [T]
-        let ends = timeout_ends(batch, &value_all, k, 1)?;
-        let returns = n_step_returns(
-            &batch.scalar_reward(),
-            &batch.done,
-            &bootstrap,
-            ends.as_deref(),
-            batch.n_steps,
-            1,
-            self.gamma,
-        );
+        let returns = scalar_returns(batch, &value_all, k, self.gamma)?;
         let returns = Tensor::from_vec(returns, b, &self.dev)?;
         let advantage = (&returns - &value)?.detach();
         let mu = out.mu.narrow(0, 0, b)?;

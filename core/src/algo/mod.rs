@@ -214,6 +214,28 @@ pub(crate) fn timeout_ends(
     Ok(Some(batch.timeout_ends(&v, c)))
 }
 
+/// The n-step returns of the summed reward (A2C, QRRL), bootstrapped from `values`:
+/// V at [`update_rows`]' rows, [rows] or [rows, 1]; `n_ends` timeouts at their end.
+pub(crate) fn scalar_returns(
+    batch: &crate::rollout::Batch,
+    values: &Tensor,
+    n_ends: usize,
+    gamma: f32,
+) -> Result<Vec<f32>> {
+    let v = values.flatten_all()?;
+    let bootstrap = v.narrow(0, batch.len(), batch.n_traj)?.to_vec1::<f32>()?; // [T]
+    let ends = timeout_ends(batch, &v, n_ends, 1)?;
+    Ok(crate::returns::n_step_returns(
+        &batch.scalar_reward(),
+        &batch.done,
+        &bootstrap,
+        ends.as_deref(),
+        batch.n_steps,
+        1,
+        gamma,
+    ))
+}
+
 /// A non-finite loss is [`CoreError::NonFinite`]: the update is skipped before it
 /// changes anything.
 pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {

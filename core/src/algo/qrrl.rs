@@ -7,6 +7,9 @@
 //! L_mon = λ_mon · 2K · mean_{B·K·K·A} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_B (V(o) − R)²,  Â = R − V(o) (R: n-step return of the summed reward)
 //!
+//! The vector variant (`saver.qrrl_vector`, for envs whose action dim j moves coordinate
+//! j): V(o) ∈ R^d on the vector reward, and Â_j weighs action dim j.
+//!
 //! Q is the network's output plus a fixed base quantile function s·(2τ − 1)
 //! (`saver.qrrl_spread`), so the initial policy is U(−s, s) rather than a point. A
 //! positive advantage pulls the quantile function toward the action (more likely), a
@@ -14,14 +17,14 @@
 //! normalisation) are the `saver` section's.
 
 use super::qnet_grad::quantile_net_grads;
-use super::{check_finite, tau_tensors, timeout_ends, update_rows, Algorithm, GradPath};
+use super::{check_finite, scalar_returns, tau_tensors, update_rows, Algorithm, GradPath};
 use super::{UpdateStats, RNG_WORD_POS};
 use crate::config::{RunConfig, SaverConfig};
 use crate::env::EnvLayout;
 use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::{Critic, ParamSet, Pcpn, QuantileFamily, QUANTILE_PREFIX};
 use crate::optim::Optimizer;
-use crate::returns::{n_step_returns, normalize_advantages};
+use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
@@ -98,7 +101,12 @@ impl Qrrl {
             dev,
             &mut net_params,
         )?;
-        let critic = Critic::with_sizes(layout.obs_dim, 1, &mut rng, dev)?;
+        let values = if config.saver.qrrl_vector {
+            layout.aligned_dim
+        } else {
+            1
+        };
+        let critic = Critic::with_sizes(layout.obs_dim, values, &mut rng, dev)?;
         let mut vars = net_params.vars.clone();
         vars.extend(critic.params().vars.clone());
         Ok(Self {
@@ -111,11 +119,7 @@ impl Qrrl {
             gamma: config.gamma as f32,
             bootstrap_timeout: config.bootstrap_timeout,
             cfg: config.saver,
-            path: if dev.is_cpu() {
-                GradPath::Fast
-            } else {
-                GradPath::Reference
-            },
+            path: GradPath::for_device(dev),
             threads: 0,
             dev: dev.clone(),
         })
@@ -128,7 +132,8 @@ impl Qrrl {
 }
 
 /// The two policy-side loss terms through candle autograd: the reference the fused
-/// path is held to. `obs` [B, O], `actions` [B, A], `advantage` [B], `taus` [A, B, K].
+/// path is held to. `obs` [B, O], `actions` [B, A], `advantage` [B, 1] (one per step)
+/// or [B, A] (the vector variant: one per action dim), `taus` [A, B, K].
 pub fn qrrl_actor_losses(
     net: &Pcpn,
     obs: &Tensor,
@@ -145,7 +150,7 @@ pub fn qrrl_actor_losses(
     let q = (net.forward(obs, &cos)? + base)?; // [A, B, K]
     let target = actions.t()?.unsqueeze(2)?; // [A, B, 1]
     let rho = quantile_loss(&target.broadcast_sub(&q)?, &tau, cfg.kappa)?;
-    let adv = advantage.reshape((1, b, 1))?;
+    let adv = advantage.t()?.unsqueeze(2)?; // [1 or A, B, 1]
     let actor = rho.broadcast_mul(&adv)?.mean_all()?;
     let mon = (monotonic_penalty(&q, &tau)?.mean_all()? * (cfg.lambda_mon * 2.0 * k as f64))?;
     Ok((actor, mon))
@@ -160,37 +165,44 @@ impl Algorithm for Qrrl {
         let (b, o, a) = (batch.len(), self.layout.obs_dim, self.layout.continuous);
         let k = self.cfg.quantiles;
         let (obs_all, n_ends) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
-        let v_all = self.critic.forward(&obs_all)?; // [B+T(+timeouts), 1]
+        let v_all = self.critic.forward(&obs_all)?; // [B+T(+timeouts), c]
         let value = v_all.narrow(0, 0, b)?;
-        let bootstrap = v_all
-            .narrow(0, b, batch.n_traj)?
-            .flatten_all()?
-            .to_vec1::<f32>()?;
-        let ends = timeout_ends(batch, &v_all, n_ends, 1)?;
-        let returns = n_step_returns(
-            &batch.scalar_reward(),
-            &batch.done,
-            &bootstrap,
-            ends.as_deref(),
-            batch.n_steps,
-            1,
-            self.gamma,
-        );
-        let returns = Tensor::from_vec(returns, (b, 1), &self.dev)?;
-        let mut adv: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?;
+        // c = 1: the summed reward; the vector variant: one return per coordinate.
+        let c = v_all.dim(1)?;
+        let returns = if c == 1 {
+            scalar_returns(batch, &v_all, n_ends, self.gamma)?
+        } else {
+            let bootstrap = v_all.narrow(0, b, batch.n_traj)?.flatten_all()?.to_vec1()?;
+            let ends = super::timeout_ends(batch, &v_all, n_ends, c)?;
+            crate::returns::n_step_returns(
+                &batch.vector_reward,
+                &batch.done,
+                &bootstrap,
+                ends.as_deref(),
+                batch.n_steps,
+                c,
+                self.gamma,
+            )
+        };
+        let returns = Tensor::from_vec(returns, (b, c), &self.dev)?;
+        let mut adv: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?; // [B, c]
         if self.cfg.adv_norm {
-            normalize_advantages(&mut adv, 1, false);
+            normalize_advantages(&mut adv, c, self.cfg.adv_norm_joint);
         }
         let critic_loss = ((value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
         let obs = obs_all.narrow(0, 0, b)?.detach();
         let taus = uniform01(&mut self.rng, a * b * k);
         let (actor, mon, grads) = match self.path {
             GradPath::Fast => {
-                // Each step's advantage weighs every action dim of it.
-                let weight: Vec<f32> = adv
-                    .iter()
-                    .flat_map(|&v| std::iter::repeat_n(v, a))
-                    .collect();
+                // Each step's advantage weighs every action dim of it; the vector
+                // variant's advantage of coordinate j weighs action dim j.
+                let weight: Vec<f32> = if c == 1 {
+                    adv.iter()
+                        .flat_map(|&v| std::iter::repeat_n(v, a))
+                        .collect()
+                } else {
+                    adv.clone()
+                };
                 let g = quantile_net_grads(
                     &self.net,
                     &obs,
@@ -206,7 +218,7 @@ impl Algorithm for Qrrl {
             }
             GradPath::Reference => {
                 let actions = Tensor::from_slice(&batch.actions, (b, a), &self.dev)?;
-                let adv_t = Tensor::from_slice(&adv, b, &self.dev)?;
+                let adv_t = Tensor::from_slice(&adv, (b, c), &self.dev)?;
                 let (actor, mon) =
                     qrrl_actor_losses(&self.net, &obs, &actions, &adv_t, &taus, &self.cfg)?;
                 let (av, mv) = (actor.to_scalar::<f32>()?, mon.to_scalar::<f32>()?);
@@ -276,9 +288,15 @@ mod tests {
     /// The fused path's losses and every policy gradient equal candle autograd's
     /// through [`qrrl_actor_losses`] (monotonic penalty on, the base quantile function
     /// on, 21 steps: two full blocks and a partial one), within 1e-4 of each tensor's
-    /// largest entry (f32 sums in another order).
+    /// largest entry (f32 sums in another order), with one advantage per step and with
+    /// the vector variant's one per action dim.
     #[test]
     fn fast_qrrl_gradients_equal_autograd() {
+        check_qrrl_gradients(false);
+        check_qrrl_gradients(true);
+    }
+
+    fn check_qrrl_gradients(vector: bool) {
         let spec = EnvSpec::new(EnvKind::Angle, 4).unwrap();
         let config = RunConfig::recommended(&spec, Algo::Qrrl, 1);
         let cfg = config.saver;
@@ -296,14 +314,15 @@ mod tests {
         };
         let obs = u(&mut rng, b * o, 1.0);
         let actions = u(&mut rng, b * a, 1.5);
-        let adv = u(&mut rng, b, 1.0);
+        let c = if vector { a } else { 1 };
+        let adv = u(&mut rng, b * c, 1.0);
         let taus = uniform01(&mut rng, a * b * k);
         let obs_t = Tensor::from_slice(&obs, (b, o), &dev).unwrap();
         let (actor, mon) = qrrl_actor_losses(
             &net,
             &obs_t,
             &Tensor::from_slice(&actions, (b, a), &dev).unwrap(),
-            &Tensor::from_slice(&adv, b, &dev).unwrap(),
+            &Tensor::from_slice(&adv, (b, c), &dev).unwrap(),
             &taus,
             &cfg,
         )
@@ -314,7 +333,11 @@ mod tests {
         );
         assert!(want_m > 0.0, "the penalty is active in this fixture");
         let want = (actor + mon).unwrap().backward().unwrap();
-        let weight: Vec<f32> = adv.iter().flat_map(|&v| [v; 4]).collect();
+        let weight: Vec<f32> = if vector {
+            adv.clone()
+        } else {
+            adv.iter().flat_map(|&v| [v; 4]).collect()
+        };
         let got = quantile_net_grads(
             &net,
             &obs_t,
@@ -346,7 +369,7 @@ mod tests {
                 .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
             assert!(
                 scale > 0.0 && diff <= 1e-4 * scale,
-                "{name}: max |fast - autograd| {diff}, max |autograd| {scale}"
+                "vector {vector}, {name}: max |fast - autograd| {diff}, max |autograd| {scale}"
             );
         }
     }

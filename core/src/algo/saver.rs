@@ -69,6 +69,18 @@ pub enum GradPath {
     Reference,
 }
 
+impl GradPath {
+    /// The fused blocks run on the host; on a GPU candle's graph keeps everything on
+    /// the device.
+    pub fn for_device(dev: &Device) -> Self {
+        if dev.is_cpu() {
+            Self::Fast
+        } else {
+            Self::Reference
+        }
+    }
+}
+
 /// τ [d, B, K] and its cosine embedding [d, B, K, 128] as tensors.
 pub fn tau_tensors(
     taus: &[f32],
@@ -117,13 +129,7 @@ impl Saver {
             agent,
             critic,
             pcpn: PcpnGrad::new(pcpn)?,
-            // The fast path's fused blocks run on the host; on a GPU candle's graph
-            // keeps everything on the device.
-            path: if dev.is_cpu() {
-                GradPath::Fast
-            } else {
-                GradPath::Reference
-            },
+            path: GradPath::for_device(dev),
             opt,
             rng: rng_for(config.seed, streams::LEARNER),
             layout,

@@ -465,5 +465,6 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         adv_norm_joint: false,
         mu_raw_penalty: 0.0,
         qrrl_spread: 0.0,
+        qrrl_vector: false,
     }
 }

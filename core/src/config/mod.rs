@@ -52,6 +52,11 @@ pub struct SaverConfig {
     /// SAVER.
     #[serde(default)]
     pub qrrl_spread: f64,
+    /// Standalone QRRL's vector variant: a vector critic V(o) ∈ R^d on the vector reward,
+    /// and coordinate j's advantage weighs action dim j; only for envs whose actions
+    /// are aligned with their coordinates ([`crate::env::EnvSpec::actions_aligned`]).
+    #[serde(default)]
+    pub qrrl_vector: bool,
 }
 
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
@@ -167,6 +172,7 @@ impl RunConfig {
                 adv_norm_joint: false,
                 mu_raw_penalty: 0.0,
                 qrrl_spread: QRRL_SPREAD,
+                qrrl_vector: false,
             },
             pretrain: PretrainConfig::paper(preset_or_angle(env)),
             pcpn_sha256: None,
@@ -300,6 +306,17 @@ impl RunConfig {
         }
         if self.algo == Algo::Qrrl {
             crate::nets::QuantileFamily::new(self.env.layout(), self.saver.qrrl_spread)?;
+        }
+        if self.saver.qrrl_vector && !(self.algo == Algo::Qrrl && self.env.actions_aligned()) {
+            return bad(
+                "saver.qrrl_vector",
+                format!(
+                    "the vector variant is standalone QRRL's, on an env whose action dim j \
+                     moves coordinate j (point, bandit); this is {} on {}",
+                    self.algo.name(),
+                    self.env
+                ),
+            );
         }
         if self.algo != Algo::Saver && self.pcpn_sha256.is_some() {
             return bad(

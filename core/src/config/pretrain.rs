@@ -38,7 +38,7 @@ pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
     match (kind, algo) {
         (kind, Algo::Qrrl) => paper_lr(kind, Algo::A2c),
         // Not in the paper: angle's rates.
-        (EnvKind::Bandit, algo) => paper_lr(EnvKind::Angle, algo),
+        (EnvKind::Bandit | EnvKind::Point, algo) => paper_lr(EnvKind::Angle, algo),
         (EnvKind::Angle, Algo::Saver) => 0.01,
         (EnvKind::Angle, Algo::A2c) => 0.0003,
         (EnvKind::Select, Algo::Saver) => 0.01,
@@ -57,7 +57,7 @@ pub fn preset_or_angle(env: &EnvSpec) -> EnvKind {
 /// The paper's number of pretraining batches for an env.
 pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
     match kind {
-        EnvKind::Angle => 100_000,
+        EnvKind::Angle | EnvKind::Point => 100_000,
         EnvKind::Select | EnvKind::Arm | EnvKind::Bandit => 10_000,
     }
 }

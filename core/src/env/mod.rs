@@ -9,12 +9,14 @@
 mod angle;
 mod arm;
 mod bandit;
+mod point;
 mod select;
 mod spec;
 
 pub use angle::Angle;
 pub use arm::{hand, wrap_angle, Arm};
 pub use bandit::{bandit_reward, Bandit};
+pub use point::Point;
 pub use select::Select;
 pub use spec::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
 

@@ -24,14 +24,17 @@ pub enum EnvKind {
     /// One-step continuous bandit: two narrow optimal actions and a broad decoy (d = 1;
     /// standalone QRRL's multi-modality check, not in the paper).
     Bandit,
+    /// Free moves in a d-cube, one action dim per coordinate (the paper's Fig. 1(a);
+    /// actions aligned with the vector reward).
+    Point,
 }
 
 impl EnvKind {
-    /// Parses `angle`, `select`, `arm` or `bandit`.
+    /// Parses `angle`, `select`, `arm`, `bandit` or `point`.
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
             CoreError::Config(format!(
-                "env: unknown environment {s:?} (expected angle, select, arm or bandit)"
+                "env: unknown environment {s:?} (expected angle, select, arm, bandit or point)"
             ))
         })
     }
@@ -43,13 +46,14 @@ impl EnvKind {
             Self::Select => "select",
             Self::Arm => "arm",
             Self::Bandit => "bandit",
+            Self::Point => "point",
         }
     }
 
     /// The layout of this preset at dimension `d`.
     pub fn layout(self, d: usize) -> EnvLayout {
         match self {
-            Self::Angle => EnvLayout {
+            Self::Angle | Self::Point => EnvLayout {
                 obs_dim: d,
                 continuous: d,
                 choices: 0,
@@ -85,7 +89,7 @@ impl EnvKind {
         match self {
             // Positions stay in the cube; a step moves each coordinate by at most
             // 0.1 (angle: 0.1·|sin φ|, 0.1·|cos φ|; select: 0.1 on one coordinate).
-            Self::Angle | Self::Select => EnvBounds {
+            Self::Angle | Self::Select | Self::Point => EnvBounds {
                 obs_low: vec![-1.0; d],
                 obs_high: vec![1.0; d],
                 max_change: 0.1,
@@ -188,9 +192,10 @@ impl EnvSpec {
             EnvKind::Angle if dim == 0 || !dim.is_multiple_of(2) => Err(CoreError::Config(
                 format!("dim: angle needs an even dimension >= 2, got {dim}"),
             )),
-            EnvKind::Select if dim == 0 => Err(CoreError::Config(
-                "dim: select needs a dimension >= 1, got 0".into(),
-            )),
+            EnvKind::Select | EnvKind::Point if dim == 0 => Err(CoreError::Config(format!(
+                "dim: {} needs a dimension >= 1, got 0",
+                kind.name()
+            ))),
             EnvKind::Arm if dim != 2 => Err(CoreError::Config(format!(
                 "dim: the arm's hand moves in 2 dimensions, got dim {dim}"
             ))),
@@ -277,6 +282,13 @@ impl EnvSpec {
         self.preset
     }
 
+    /// Whether continuous action dim j moves state-aligned coordinate j alone (point
+    /// and the bandit), so that coordinate j's advantage can weigh action dim j (QRRL's
+    /// vector variant). Custom envs do not declare it yet.
+    pub fn actions_aligned(&self) -> bool {
+        matches!(self.preset, Some(EnvKind::Point | EnvKind::Bandit))
+    }
+
     /// The name.
     pub fn name(&self) -> &str {
         &self.name
@@ -306,6 +318,7 @@ impl EnvSpec {
             Some(EnvKind::Select) => Ok(Box::new(Select::new(self.dim(), max_steps))),
             Some(EnvKind::Arm) => Ok(Box::new(Arm::new(max_steps))),
             Some(EnvKind::Bandit) => Ok(Box::new(super::Bandit::new())),
+            Some(EnvKind::Point) => Ok(Box::new(super::Point::new(self.dim(), max_steps))),
             None => Err(CoreError::Config(format!(
                 "{self} is not a preset of this build: its actors bring the env"
             ))),

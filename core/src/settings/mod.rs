@@ -138,6 +138,8 @@ pub struct SaverSettings {
     pub mu_raw_penalty: Option<f64>,
     #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
     pub qrrl_spread: Option<f64>,
+    #[arg(long, help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "saver.qrrl_vector"))]
+    pub qrrl_vector: Option<bool>,
 }
 
 /// Every setting of a run, each optional: flags, or a `--config` file (the same names

@@ -1,0 +1,91 @@
+//! `point` (the paper's Figure 1(a)): an agent moving freely in the d-cube, each action
+//! dim moving its own coordinate: p' = clip(p + 0.1·clip(a, −1, 1), −1, 1), reset
+//! p ~ U(−1, 1)^d, goal 0. Its actions are aligned with its state-aligned coordinates,
+//! so a vector advantage can be applied to each action dim directly (standalone QRRL's
+//! vector variant, docs/ALGORITHM.md §14); for SAVER and A2C it is one more cube.
+
+use super::{finish_step, Env, EnvLayout, Step};
+use crate::rng::SaverRng;
+use rand::Rng;
+
+/// The d-cube with one action dim per coordinate; goal at the origin.
+pub struct Point {
+    /// Position p in [-1, 1]^d.
+    pos: Vec<f32>,
+    /// Goal g.
+    goal: Vec<f32>,
+    /// Steps in this episode.
+    steps: u32,
+    /// Episode limit.
+    max_steps: u32,
+}
+
+impl Point {
+    /// A d-cube with the goal at the origin.
+    pub fn new(dim: usize, max_steps: u32) -> Self {
+        Self {
+            pos: vec![0.0; dim],
+            goal: vec![0.0; dim],
+            steps: 0,
+            max_steps,
+        }
+    }
+}
+
+impl Env for Point {
+    fn layout(&self) -> EnvLayout {
+        super::EnvKind::Point.layout(self.pos.len())
+    }
+
+    fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {
+        for p in &mut self.pos {
+            *p = rng.random_range(-1.0f32..1.0);
+        }
+        self.steps = 0;
+        obs.copy_from_slice(&self.pos);
+    }
+
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
+        let before = self.pos.clone();
+        for (p, &a) in self.pos.iter_mut().zip(action) {
+            *p = (*p + 0.1 * a.clamp(-1.0, 1.0)).clamp(-1.0, 1.0);
+        }
+        self.steps += 1;
+        obs.copy_from_slice(&self.pos);
+        finish_step(&before, &self.pos, &self.goal, self.steps, self.max_steps)
+    }
+
+    fn steps(&self) -> u32 {
+        self.steps
+    }
+
+    fn goal(&self) -> Vec<f32> {
+        self.goal.clone()
+    }
+
+    fn snapshot(&self) -> Vec<f32> {
+        super::snapshot_of(&self.pos, &self.goal, self.steps)
+    }
+
+    fn restore(&mut self, state: &[f32]) -> crate::Result<()> {
+        super::restore_into(state, &mut self.pos, &mut self.goal, &mut self.steps)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// By hand: from p = (0.5, −0.95), a = (−1, −3) moves by (−0.1, −0.1 clipped at the
+    /// wall): p' = (0.4, −1); vector reward |p| − |p'| = (0.1, −0.05).
+    #[test]
+    fn point_by_hand() {
+        let mut r = Point::new(2, 1000);
+        r.restore(&[0.5, -0.95, 0.0, 0.0, 0.0]).unwrap();
+        let mut obs = [0.0; 2];
+        let s = r.step(&[-1.0, -3.0], &mut obs);
+        assert!((obs[0] - 0.4).abs() < 1e-6 && obs[1] == -1.0, "{obs:?}");
+        assert!((s.vector_reward[0] - 0.1).abs() < 1e-6);
+        assert!((s.vector_reward[1] + 0.05).abs() < 1e-6);
+    }
+}
