@@ -109,13 +109,18 @@ where
 }
 
 /// Writes `run`'s action histogram (4,000 draws) as `action_histogram.png` in it and
-/// returns the draws.
-pub fn write_for_run(run: &Path) -> Result<Vec<Vec<f32>>> {
+/// returns the draws; `None` for an env this build cannot make (a custom env, whose
+/// actors run elsewhere).
+pub fn write_for_run(run: &Path) -> Result<Option<Vec<Vec<f32>>>> {
+    let (settings, _) = load(run)?;
+    if settings.env.kind().is_none() {
+        return Ok(None);
+    }
     let actions = sample_actions(run, 4000, 0)?;
     let name = run.file_name().map_or_else(
         || run.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     );
     draw(&actions, &name, &run.join("action_histogram.png"))?;
-    Ok(actions)
+    Ok(Some(actions))
 }

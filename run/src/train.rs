@@ -77,7 +77,8 @@ pub fn train(
     let png = out.join("learning_curve.png");
     plot_runs(&[out.to_path_buf()], &png).context("drawing the learning curve")?;
     let actions = crate::histogram::write_for_run(out).context("drawing the action histogram")?;
-    if show && config.env.kind() == Some(saver_core::env::EnvKind::Bandit) {
+    let actions = actions.unwrap_or_default();
+    if show && !actions.is_empty() && config.env.kind() == Some(saver_core::env::EnvKind::Bandit) {
         let a: Vec<f32> = actions.iter().map(|a| a[0]).collect();
         let near = |at: f32| 100.0 * crate::histogram::share_near(&a, at, 0.1);
         let reward = a
@@ -297,9 +298,9 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
     crate::out!("  config      {}", out.join("config.toml").display());
     crate::out!("  metrics     {}", o.metrics.display());
     crate::out!("  plot        {}", out.join("learning_curve.png").display());
-    crate::out!(
-        "  actions     {}",
-        out.join("action_histogram.png").display()
-    );
+    let histogram = out.join("action_histogram.png");
+    if histogram.exists() {
+        crate::out!("  actions     {}", histogram.display());
+    }
     crate::out!("  checkpoint  {}", o.checkpoint.display());
 }

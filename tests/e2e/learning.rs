@@ -157,7 +157,7 @@ fn qrrl_keeps_both_optima_of_the_bandit() {
     let mut config = RunConfig::recommended(&spec, Algo::Qrrl, 200_000);
     config.seed = 1;
     train_with(&config, &dir, None, Arc::new(AtomicBool::new(false)), false).unwrap();
-    let drawn = saver_run::histogram::write_for_run(&dir).unwrap();
+    let drawn = saver_run::histogram::write_for_run(&dir).unwrap().unwrap();
     assert!(dir.join("action_histogram.png").exists());
     let a: Vec<f32> = drawn.iter().map(|x| x[0]).collect();
     let (left, right, decoy) = (

@@ -125,8 +125,8 @@ pub struct QuantilePolicy {
     layout: EnvLayout,
     /// s of the base quantile function.
     spread: f32,
-    /// Scratch: trunk activations, chunk products, head hidden, embedding.
-    buf: [Vec<f32>; 4],
+    /// Scratch: trunk activations, chunk products, head hidden, embedding, product.
+    buf: [Vec<f32>; 5],
 }
 
 impl QuantilePolicy {
@@ -166,7 +166,7 @@ impl QuantilePolicy {
     /// Q_j(τ_j, obs) for every action dim j, into `action`.
     pub fn quantiles(&mut self, obs: &[f32], taus: &[f32], action: &mut Vec<f32>) {
         let c = self.layout.continuous;
-        let [mut h, mut z, mut u, mut cos] = std::mem::take(&mut self.buf);
+        let [mut h, mut z, mut u, mut cos, mut prod] = std::mem::take(&mut self.buf);
         dense(obs, self.data(0), self.data(1), PCPN_HIDDEN, &mut h);
         dense(&h, self.data(2), self.data(3), c * PCPN_CHUNK, &mut z);
         cos.resize(PCPN_CHUNK, 0.0);
@@ -175,11 +175,8 @@ impl QuantilePolicy {
         let (e, hh) = (PCPN_CHUNK, PCPN_HEAD_HIDDEN);
         for (j, &tau) in taus.iter().enumerate().take(c) {
             cosine_embedding_into(tau, &mut cos);
-            let prod: Vec<f32> = z[j * e..(j + 1) * e]
-                .iter()
-                .zip(&cos)
-                .map(|(a, b)| a * b)
-                .collect();
+            prod.clear();
+            prod.extend(z[j * e..(j + 1) * e].iter().zip(&cos).map(|(a, b)| a * b));
             dense(
                 &prod,
                 &w2[j * e * hh..(j + 1) * e * hh],
@@ -191,7 +188,7 @@ impl QuantilePolicy {
             let base = self.spread * (2.0 * tau - 1.0);
             action.push(u.iter().zip(w).map(|(a, b)| a * b).sum::<f32>() + b3[j] + base);
         }
-        self.buf = [h, z, u, cos];
+        self.buf = [h, z, u, cos, prod];
     }
 }
 
