@@ -13,6 +13,7 @@ pub mod eval;
 pub mod figures;
 pub mod histogram;
 pub mod output;
+pub mod pcpn_gradients;
 pub mod plot;
 pub mod pretrain;
 pub mod progress;

@@ -2,6 +2,7 @@
 //! weight publishing do not care which one runs (and a third, standalone QRRL, fits).
 
 mod a2c;
+mod dense;
 pub(crate) mod fused;
 pub mod per_dim;
 mod qnet_grad;
