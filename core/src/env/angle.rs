@@ -9,13 +9,13 @@ use std::f32::consts::PI;
 /// The d-cube with pairwise (step, angle) actions; goal at the origin by default.
 pub struct Angle {
     /// Position p in [-1, 1]^d.
-    pos: Vec<f32>,
+    pub(super) pos: Vec<f32>,
     /// Goal g (the task parameter).
-    goal: Vec<f32>,
+    pub(super) goal: Vec<f32>,
     /// Steps in this episode.
-    steps: u32,
+    pub(super) steps: u32,
     /// Episode limit (1000 in the paper).
-    max_steps: u32,
+    pub(super) max_steps: u32,
 }
 
 impl Angle {

@@ -4,71 +4,54 @@
 //! so a vector advantage can be applied to each action dim directly (standalone QRRL's
 //! vector variant, docs/ALGORITHM.md §14); for SAVER and A2C it is one more cube.
 
-use super::{finish_step, Env, EnvLayout, Step};
+use super::{finish_step, Angle, Env, EnvLayout, Step};
 use crate::rng::SaverRng;
-use rand::Rng;
 
-/// The d-cube with one action dim per coordinate; goal at the origin.
-pub struct Point {
-    /// Position p in [-1, 1]^d.
-    pos: Vec<f32>,
-    /// Goal g.
-    goal: Vec<f32>,
-    /// Steps in this episode.
-    steps: u32,
-    /// Episode limit.
-    max_steps: u32,
-}
+/// The d-cube with one action dim per coordinate; goal at the origin. The same state,
+/// reset and bookkeeping as [`Angle`]'s cube; only the move differs.
+pub struct Point(Angle);
 
 impl Point {
     /// A d-cube with the goal at the origin.
     pub fn new(dim: usize, max_steps: u32) -> Self {
-        Self {
-            pos: vec![0.0; dim],
-            goal: vec![0.0; dim],
-            steps: 0,
-            max_steps,
-        }
+        Self(Angle::new(dim, max_steps))
     }
 }
 
 impl Env for Point {
     fn layout(&self) -> EnvLayout {
-        super::EnvKind::Point.layout(self.pos.len())
+        super::EnvKind::Point.layout(self.0.pos.len())
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {
-        for p in &mut self.pos {
-            *p = rng.random_range(-1.0f32..1.0);
-        }
-        self.steps = 0;
-        obs.copy_from_slice(&self.pos);
+        self.0.reset(rng, obs)
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
-        let before = self.pos.clone();
-        for (p, &a) in self.pos.iter_mut().zip(action) {
+        let c = &mut self.0;
+        let before = c.pos.clone();
+        for (p, &a) in c.pos.iter_mut().zip(action) {
             *p = (*p + 0.1 * a.clamp(-1.0, 1.0)).clamp(-1.0, 1.0);
         }
-        self.steps += 1;
-        obs.copy_from_slice(&self.pos);
-        finish_step(&before, &self.pos, &self.goal, self.steps, self.max_steps)
+        c.steps += 1;
+        obs.copy_from_slice(&c.pos);
+        finish_step(&before, &c.pos, &c.goal, c.steps, c.max_steps)
     }
 
     fn steps(&self) -> u32 {
-        self.steps
+        self.0.steps()
     }
 
     fn goal(&self) -> Vec<f32> {
-        self.goal.clone()
+        self.0.goal()
     }
 
     fn snapshot(&self) -> Vec<f32> {
-        super::snapshot_of(&self.pos, &self.goal, self.steps)
+        self.0.snapshot()
     }
 
     fn restore(&mut self, state: &[f32]) -> crate::Result<()> {
-        super::restore_into(state, &mut self.pos, &mut self.goal, &mut self.steps)
+        self.0.restore(state)
     }
 }
 
