@@ -250,6 +250,7 @@ impl Pretrainer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::algo::test_util::{grad_of, scale_and_worst};
     use crate::env::EnvKind;
 
     /// The best constant predictor of Δp_j at τ is the τ-quantile of the marginal of Δp_j
@@ -337,21 +338,8 @@ mod tests {
                 (loss - want_loss).abs() <= 1e-6 * want_loss.abs(),
                 "{spec}: loss {loss} vs autograd {want_loss}"
             );
-            let flat = |g: &GradStore, v: &candle_core::Var| -> Vec<f32> {
-                g.get(v.as_tensor())
-                    .unwrap()
-                    .flatten_all()
-                    .unwrap()
-                    .to_vec1()
-                    .unwrap()
-            };
             for (name, var) in &params.vars {
-                let (g, w) = (flat(&got, var), flat(&want, var));
-                let scale = w.iter().fold(0f32, |m, x| m.max(x.abs()));
-                let diff = g
-                    .iter()
-                    .zip(&w)
-                    .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+                let (scale, diff) = scale_and_worst(&grad_of(&got, var), &grad_of(&want, var));
                 assert!(
                     scale > 0.0 && diff <= 1e-4 * scale,
                     "{spec} {name}: max |fast - autograd| {diff}, max |autograd| {scale}"
@@ -361,8 +349,8 @@ mod tests {
             assert_eq!(loss3.to_bits(), loss.to_bits(), "{spec}: loss on 3 threads");
             for (name, var) in &params.vars {
                 assert_eq!(
-                    flat(&got3, var),
-                    flat(&got, var),
+                    grad_of(&got3, var),
+                    grad_of(&got, var),
                     "{spec} {name} on 3 threads"
                 );
             }

@@ -203,7 +203,6 @@ fn human(s: u64) -> String {
 
 /// Draws the groups, one panel per env, into `out` (SVG when it ends in .svg, else PNG).
 pub fn draw(groups: &[Group], out: &Path) -> Result<()> {
-    register_font();
     let envs: Vec<&str> = {
         let mut e: Vec<&str> = groups.iter().map(|g| g.env.as_str()).collect();
         e.dedup();
@@ -215,18 +214,58 @@ pub fn draw(groups: &[Group], out: &Path) -> Result<()> {
     let cols = envs.len().min(2);
     let rows = envs.len().div_ceil(cols);
     let size = (560 * cols as u32, 400 * rows as u32);
+    render(
+        &Figure {
+            groups,
+            envs: &envs,
+            rows,
+            cols,
+        },
+        size,
+        out,
+    )
+}
+
+/// A picture drawn onto a drawing area of either plotters backend.
+pub trait Picture {
+    /// Draws onto `root`.
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static;
+}
+
+/// Draws `picture` into `out` at `size`: SVG when its name ends in .svg, PNG otherwise.
+pub fn render(picture: &impl Picture, size: (u32, u32), out: &Path) -> Result<()> {
+    register_font();
     let svg = out
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("svg"));
     let fail = |e: String| anyhow::anyhow!("writing {}: {e}", out.display());
     if svg {
         let root = SVGBackend::new(out, size).into_drawing_area();
-        panels(&root, groups, &envs, rows, cols)?;
+        picture.draw(&root)?;
         root.present().map_err(|e| fail(e.to_string()))
     } else {
         let root = BitMapBackend::new(out, size).into_drawing_area();
-        panels(&root, groups, &envs, rows, cols)?;
+        picture.draw(&root)?;
         root.present().map_err(|e| fail(e.to_string()))
+    }
+}
+
+/// The groups' figure: one panel per env on a grid.
+struct Figure<'a> {
+    groups: &'a [Group],
+    envs: &'a [&'a str],
+    rows: usize,
+    cols: usize,
+}
+
+impl Picture for Figure<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        panels(root, self.groups, self.envs, self.rows, self.cols)
     }
 }
 

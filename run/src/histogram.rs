@@ -5,21 +5,28 @@
 //! bandit env it shows whether both optimal actions (±0.75) are kept.
 
 use crate::eval::load;
-use crate::plot::register_font;
-use anyhow::{Context, Result};
+use crate::figures::{render, Picture};
+use anyhow::Result;
+use plotters::coord::Shift;
 use plotters::prelude::*;
+use saver_core::link::{ActorSettings, PolicyWeights};
 use saver_core::rng::rng_for;
 use std::path::Path;
+use std::sync::Arc;
 
 /// Bins over the drawn range.
 const BINS: usize = 60;
 /// Panels drawn at most.
 const MAX_PANELS: usize = 4;
 
-/// `samples` actions of the policy in run folder `run` at one reset observation of its
-/// env (seeded by `seed`), [n][action_dim].
-pub fn sample_actions(run: &Path, samples: usize, seed: u64) -> Result<Vec<Vec<f32>>> {
-    let (settings, weights) = load(run)?;
+/// `samples` actions of the policy acting with `weights` at one reset observation of
+/// its env (seeded by `seed`), [n][action_dim].
+pub fn sample_actions(
+    settings: &ActorSettings,
+    weights: Arc<PolicyWeights>,
+    samples: usize,
+    seed: u64,
+) -> Result<Vec<Vec<f32>>> {
     let mut policy = settings.policy.acting(weights)?;
     let mut env = settings.env.make(settings.max_episode_steps)?;
     let mut rng = rng_for(seed, 0);
@@ -45,23 +52,36 @@ pub fn draw(actions: &[Vec<f32>], title: &str, png: &Path) -> Result<()> {
     if dims == 0 {
         return Ok(());
     }
-    register_font();
-    let svg = png.extension().is_some_and(|e| e == "svg");
     let size = (360 * dims as u32, 320);
-    let written = if svg {
-        let root = SVGBackend::new(png, size).into_drawing_area();
-        panels(&root, actions, dims, title)?;
-        root.present().map_err(|e| anyhow::anyhow!("{e}"))
-    } else {
-        let root = BitMapBackend::new(png, size).into_drawing_area();
-        panels(&root, actions, dims, title)?;
-        root.present().map_err(|e| anyhow::anyhow!("{e}"))
-    };
-    written.with_context(|| format!("writing {}", png.display()))
+    render(
+        &Histograms {
+            actions,
+            dims,
+            title,
+        },
+        size,
+        png,
+    )
+}
+
+/// One histogram panel per action dim.
+struct Histograms<'a> {
+    actions: &'a [Vec<f32>],
+    dims: usize,
+    title: &'a str,
+}
+
+impl Picture for Histograms<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>
+    where
+        DB::ErrorType: 'static,
+    {
+        panels(root, self.actions, self.dims, self.title)
+    }
 }
 
 fn panels<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
+    root: &DrawingArea<DB, Shift>,
     actions: &[Vec<f32>],
     dims: usize,
     title: &str,
@@ -112,11 +132,11 @@ where
 /// returns the draws; `None` for an env this build cannot make (a custom env, whose
 /// actors run elsewhere).
 pub fn write_for_run(run: &Path) -> Result<Option<Vec<Vec<f32>>>> {
-    let (settings, _) = load(run)?;
+    let (settings, weights) = load(run)?;
     if settings.env.kind().is_none() {
         return Ok(None);
     }
-    let actions = sample_actions(run, 4000, 0)?;
+    let actions = sample_actions(&settings, weights, 4000, 0)?;
     let name = run.file_name().map_or_else(
         || run.display().to_string(),
         |n| n.to_string_lossy().into_owned(),

@@ -2,7 +2,7 @@
 //! scalar reward = sum of the vector reward, shared trunk, entropy β = 0.
 
 use super::{
-    check_finite, matrix, policy_diagnostics, scalar_returns, update_rows, Algorithm, UpdateStats,
+    batch_returns, check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats,
 };
 use crate::config::RunConfig;
 use crate::env::EnvLayout;
@@ -84,7 +84,7 @@ impl Algorithm for A2c {
         let out = self.agent.forward(&rows)?;
         let value_all = out.value.expect("A2C agent has a value head");
         let value = value_all.narrow(0, 0, b)?; // [B]
-        let returns = scalar_returns(batch, &value_all, k, self.gamma)?;
+        let returns = batch_returns(batch, &batch.scalar_reward(), &value_all, k, 1, self.gamma)?;
         let returns = Tensor::from_vec(returns, b, &self.dev)?;
         let advantage = (&returns - &value)?.detach();
         let mu = out.mu.narrow(0, 0, b)?;

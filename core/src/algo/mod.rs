@@ -15,7 +15,9 @@ pub use fused::{threads_for, Loss};
 pub use qnet_grad::{quantile_net_grads, NetGrads};
 pub use qrrl::{qrrl_actor_losses, Qrrl};
 pub use saver::{tau_tensors, GradPath, Saver};
-pub use saver_grad::{policy_grads, saver_actor_losses, InputGrad, PcpnGrad, SaverLosses};
+pub use saver_grad::{
+    policy_grads, saver_actor_losses, weighted_quantile_losses, InputGrad, PcpnGrad, SaverLosses,
+};
 
 use crate::acting::PolicyFamily;
 use crate::config::{Algo, RunConfig};
@@ -215,24 +217,29 @@ pub(crate) fn timeout_ends(
     Ok(Some(batch.timeout_ends(&v, c)))
 }
 
-/// The n-step returns of the summed reward (A2C, QRRL), bootstrapped from `values`:
-/// V at [`update_rows`]' rows, [rows] or [rows, 1]; `n_ends` timeouts at their end.
-pub(crate) fn scalar_returns(
+/// The n-step returns of `rewards` ([B, c]: the summed reward with c = 1, the vector
+/// reward with c = d) for every algorithm, bootstrapped from `values`: V at
+/// [`update_rows`]' rows ([rows] or [rows, c]); `n_ends` timeouts at their end.
+pub(crate) fn batch_returns(
     batch: &crate::rollout::Batch,
+    rewards: &[f32],
     values: &Tensor,
     n_ends: usize,
+    c: usize,
     gamma: f32,
 ) -> Result<Vec<f32>> {
-    let v = values.flatten_all()?;
-    let bootstrap = v.narrow(0, batch.len(), batch.n_traj)?.to_vec1::<f32>()?; // [T]
-    let ends = timeout_ends(batch, &v, n_ends, 1)?;
+    let bootstrap = values
+        .narrow(0, batch.len(), batch.n_traj)?
+        .flatten_all()?
+        .to_vec1::<f32>()?; // [T, c]
+    let ends = timeout_ends(batch, values, n_ends, c)?;
     Ok(crate::returns::n_step_returns(
-        &batch.scalar_reward(),
+        rewards,
         &batch.done,
         &bootstrap,
         ends.as_deref(),
         batch.n_steps,
-        1,
+        c,
         gamma,
     ))
 }
@@ -249,3 +256,29 @@ pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
 
 #[cfg(test)]
 mod tests;
+
+/// Helpers of the tests that hold a fast path to its autograd reference.
+#[cfg(test)]
+pub(crate) mod test_util {
+    use candle_core::backprop::GradStore;
+    use candle_core::Var;
+
+    /// The gradient of `var` in `g`, flattened.
+    pub fn grad_of(g: &GradStore, var: &Var) -> Vec<f32> {
+        g.get(var.as_tensor())
+            .expect("a gradient for every variable")
+            .flatten_all()
+            .and_then(|t| t.to_vec1())
+            .expect("a gradient readable on the host")
+    }
+
+    /// (max |want|, max |got − want|): the scale and the worst difference.
+    pub fn scale_and_worst(got: &[f32], want: &[f32]) -> (f32, f32) {
+        let scale = want.iter().fold(0f32, |m, x| m.max(x.abs()));
+        let worst = got
+            .iter()
+            .zip(want)
+            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        (scale, worst)
+    }
+}

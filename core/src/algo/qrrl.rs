@@ -17,11 +17,11 @@
 //! normalisation) are the `saver` section's.
 
 use super::qnet_grad::quantile_net_grads;
-use super::{check_finite, scalar_returns, tau_tensors, update_rows, Algorithm, GradPath};
+use super::saver_grad::weighted_quantile_losses;
+use super::{batch_returns, check_finite, tau_tensors, update_rows, Algorithm, GradPath};
 use super::{UpdateStats, RNG_WORD_POS};
 use crate::config::{RunConfig, SaverConfig};
 use crate::env::EnvLayout;
-use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::{Critic, ParamSet, Pcpn, QuantileFamily, QUANTILE_PREFIX};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
@@ -148,12 +148,8 @@ pub fn qrrl_actor_losses(
     // Q = network + the base quantile function s·(2τ − 1).
     let base = ((&tau * 2.0)? - 1.0)?.affine(cfg.qrrl_spread, 0.0)?;
     let q = (net.forward(obs, &cos)? + base)?; // [A, B, K]
-    let target = actions.t()?.unsqueeze(2)?; // [A, B, 1]
-    let rho = quantile_loss(&target.broadcast_sub(&q)?, &tau, cfg.kappa)?;
-    let adv = advantage.t()?.unsqueeze(2)?; // [1 or A, B, 1]
-    let actor = rho.broadcast_mul(&adv)?.mean_all()?;
-    let mon = (monotonic_penalty(&q, &tau)?.mean_all()? * (cfg.lambda_mon * 2.0 * k as f64))?;
-    Ok((actor, mon))
+    let l = weighted_quantile_losses(&q, actions, advantage, &tau, cfg)?;
+    Ok((l.actor, l.mon))
 }
 
 impl Algorithm for Qrrl {
@@ -169,21 +165,12 @@ impl Algorithm for Qrrl {
         let value = v_all.narrow(0, 0, b)?;
         // c = 1: the summed reward; the vector variant: one return per coordinate.
         let c = v_all.dim(1)?;
-        let returns = if c == 1 {
-            scalar_returns(batch, &v_all, n_ends, self.gamma)?
+        let rewards = if c == 1 {
+            batch.scalar_reward()
         } else {
-            let bootstrap = v_all.narrow(0, b, batch.n_traj)?.flatten_all()?.to_vec1()?;
-            let ends = super::timeout_ends(batch, &v_all, n_ends, c)?;
-            crate::returns::n_step_returns(
-                &batch.vector_reward,
-                &batch.done,
-                &bootstrap,
-                ends.as_deref(),
-                batch.n_steps,
-                c,
-                self.gamma,
-            )
+            batch.vector_reward.clone()
         };
+        let returns = batch_returns(batch, &rewards, &v_all, n_ends, c, self.gamma)?;
         let returns = Tensor::from_vec(returns, (b, c), &self.dev)?;
         let mut adv: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?; // [B, c]
         if self.cfg.adv_norm {
@@ -282,6 +269,7 @@ impl Algorithm for Qrrl {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::algo::test_util::{grad_of, scale_and_worst};
     use crate::config::Algo;
     use crate::env::{EnvKind, EnvSpec};
 
@@ -353,20 +341,7 @@ mod tests {
         assert!((got.quantile_loss - want_a).abs() <= 1e-5 * want_a.abs().max(1e-3));
         assert!((got.mon_loss - want_m).abs() <= 1e-5 * want_m.abs().max(1e-3));
         for (name, var) in &params.vars {
-            let flat = |g: &candle_core::backprop::GradStore| -> Vec<f32> {
-                g.get(var.as_tensor())
-                    .unwrap()
-                    .flatten_all()
-                    .unwrap()
-                    .to_vec1()
-                    .unwrap()
-            };
-            let (g, w) = (flat(&got.grads), flat(&want));
-            let scale = w.iter().fold(0f32, |m, x| m.max(x.abs()));
-            let diff = g
-                .iter()
-                .zip(&w)
-                .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+            let (scale, diff) = scale_and_worst(&grad_of(&got.grads, var), &grad_of(&want, var));
             assert!(
                 scale > 0.0 && diff <= 1e-4 * scale,
                 "vector {vector}, {name}: max |fast - autograd| {diff}, max |autograd| {scale}"

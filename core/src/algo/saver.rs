@@ -7,14 +7,14 @@
 
 use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
 use super::{
-    check_finite, matrix, policy_diagnostics, timeout_ends, update_rows, Algorithm, UpdateStats,
+    batch_returns, check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats,
 };
 use crate::config::{RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
 use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
-use crate::returns::{n_step_returns, normalize_advantages};
+use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
@@ -158,12 +158,7 @@ impl Algorithm for Saver {
     }
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
-        let (b, t, o, d) = (
-            batch.len(),
-            batch.n_traj,
-            self.layout.obs_dim,
-            self.layout.aligned_dim,
-        );
+        let (b, o, d) = (batch.len(), self.layout.obs_dim, self.layout.aligned_dim);
         let k = self.cfg.quantiles;
         let (obs_all, n_ends) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
         let out = self.agent.forward(&obs_all)?;
@@ -171,38 +166,16 @@ impl Algorithm for Saver {
         let x_all = Tensor::cat(&[&obs_all, &out.mu, &out.log_std], 1)?.detach();
         let v_all = self.critic.forward(&x_all)?; // [B+T, d]
         let value = v_all.narrow(0, 0, b)?;
-        let bootstrap = v_all.narrow(0, b, t)?.flatten_all()?.to_vec1::<f32>()?;
-        let ends = timeout_ends(batch, &v_all, n_ends, d)?;
-        let returns = n_step_returns(
-            &batch.vector_reward,
-            &batch.done,
-            &bootstrap,
-            ends.as_deref(),
-            batch.n_steps,
-            d,
-            self.gamma,
-        );
-        let value_host: Vec<f32> = value.flatten_all()?.to_vec1()?;
-        let per_dim_of = |mu: &Tensor, log_std: &Tensor| -> Result<_> {
-            Ok(super::per_dim::per_dim_stats(
-                &returns,
-                &value_host,
-                &batch.vector_reward,
-                &mu.flatten_all()?.to_vec1::<f32>()?,
-                &log_std.flatten_all()?.to_vec1::<f32>()?,
-                d,
-                self.mu_bound,
-            ))
-        };
-        let returns_host = returns.clone();
-        let returns = Tensor::from_vec(returns_host, (b, d), &self.dev)?;
+        let returns_host =
+            batch_returns(batch, &batch.vector_reward, &v_all, n_ends, d, self.gamma)?;
+        let returns = Tensor::from_slice(&returns_host, (b, d), &self.dev)?;
         let mut advantage = (&returns - &value)?.detach();
         if self.cfg.adv_norm {
             let mut a = advantage.flatten_all()?.to_vec1::<f32>()?;
             normalize_advantages(&mut a, d, self.cfg.adv_norm_joint);
             advantage = Tensor::from_vec(a, (b, d), &self.dev)?;
         }
-        let critic_loss = ((value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
+        let critic_loss = ((&value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
 
         let taus = uniform01(&mut self.rng, d * b * k);
         let mu = out.mu.narrow(0, 0, b)?;
@@ -250,7 +223,15 @@ impl Algorithm for Saver {
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
-        let per_dim = per_dim_of(&mu, &log_std)?;
+        let per_dim = super::per_dim::per_dim_stats(
+            &returns_host,
+            &value.flatten_all()?.to_vec1::<f32>()?,
+            &batch.vector_reward,
+            &mu.flatten_all()?.to_vec1::<f32>()?,
+            &log_std.flatten_all()?.to_vec1::<f32>()?,
+            d,
+            self.mu_bound,
+        );
         Ok(UpdateStats {
             values: vec![
                 ("actor_loss", actor),

@@ -160,14 +160,27 @@ pub fn saver_actor_losses(
     cos: &Tensor,
     cfg: &SaverConfig,
 ) -> Result<SaverLosses> {
-    let k = tau.dim(2)?;
     let x = Tensor::cat(&[obs, mu, log_std], 1)?; // [B, I]
     let q = pcpn.forward(&x, cos)?; // [d, B, K]
-    let target = state_delta.t()?.unsqueeze(2)?; // [d, B, 1]
-    let adv = advantage.t()?.unsqueeze(2)?; // [d, B, 1]
-    let delta = target.broadcast_sub(&q)?;
-    let rho = quantile_loss(&delta, tau, cfg.kappa)?;
-    let actor = rho.broadcast_mul(&adv)?.mean_all()?;
-    let mon = (monotonic_penalty(&q, tau)?.mean_all()? * (cfg.lambda_mon * 2.0 * k as f64))?;
+    weighted_quantile_losses(&q, state_delta, advantage, tau, cfg)
+}
+
+/// The loss both quantile algorithms share, through autograd: quantiles `q` [d, B, K]
+/// at `tau`, targets [B, d], weights [B, d] or [B, 1] (one per step):
+/// `mean ρ_τ(y − q)·w` and `λ_mon·2K·mean` of the monotonic penalty. The reference of
+/// the fused blocks (SAVER: y = Δp, w = Â_j; QRRL: y = the action, w = Â).
+pub fn weighted_quantile_losses(
+    q: &Tensor,
+    target: &Tensor,
+    weight: &Tensor,
+    tau: &Tensor,
+    cfg: &SaverConfig,
+) -> Result<SaverLosses> {
+    let k = tau.dim(2)?;
+    let target = target.t()?.unsqueeze(2)?; // [d, B, 1]
+    let w = weight.t()?.unsqueeze(2)?; // [d or 1, B, 1]
+    let rho = quantile_loss(&target.broadcast_sub(q)?, tau, cfg.kappa)?;
+    let actor = rho.broadcast_mul(&w)?.mean_all()?;
+    let mon = (monotonic_penalty(q, tau)?.mean_all()? * (cfg.lambda_mon * 2.0 * k as f64))?;
     Ok(SaverLosses { actor, mon })
 }

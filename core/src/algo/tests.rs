@@ -407,11 +407,7 @@ fn fast_saver_gradient_equals_the_autograd_reference() {
         let (dmu, dls) = policy_grads(&g.dx, l.obs_dim, l.mu_dim()).unwrap();
         let got: Vec<f32> = [flat(&dmu), flat(&dls)].concat();
 
-        let scale = want.iter().fold(0.0f32, |m, x| m.max(x.abs()));
-        let worst = want
-            .iter()
-            .zip(&got)
-            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        let (scale, worst) = super::test_util::scale_and_worst(&got, &want);
         assert!(
             scale > 0.0 && worst <= 1e-5 * scale,
             "{spec} κ={kappa:?}: error {worst:e} at scale {scale:e}"

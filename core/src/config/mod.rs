@@ -126,7 +126,7 @@ pub struct RunConfig {
 pub const RECOMMENDED_SAVER_LR: f64 = 1e-3;
 /// QRRL's [`SaverConfig::qrrl_spread`] by default: the initial policy is U(−1, 1), the
 /// env's whole action range (with 0.637, the spread of the Gaussian's initial σ = e⁻¹,
-/// the bandit's optima at ±0.75 lay outside it and every seed settled on the decoy;
+/// the bandit's optima at ±0.75 lay outside it and seed 0 settled on the decoy;
 /// docs/ALGORITHM.md §14).
 pub const QRRL_SPREAD: f64 = 1.0;
 /// Standalone QRRL's learning rate by default (with Adam; docs/ALGORITHM.md §14).
@@ -155,12 +155,11 @@ impl RunConfig {
             lr_decay: false,
             grad_clip: None,
             head: HeadConfig::FAITHFUL,
-            // The bandit is one step long; the paper's envs stop at 1000.
-            max_episode_steps: if env.kind() == Some(crate::env::EnvKind::Bandit) {
-                1
-            } else {
-                1000
-            },
+            // The paper's envs stop at 1000; the bandit is one step long.
+            max_episode_steps: env
+                .kind()
+                .and_then(|k| k.fixed_episode_steps())
+                .unwrap_or(1000),
             bootstrap_timeout: false,
             value_coef: 0.5,
             saver: SaverConfig {
@@ -295,14 +294,17 @@ impl RunConfig {
             }
         }
         self.pretrain.validate()?;
-        if self.env.kind() == Some(crate::env::EnvKind::Bandit) && self.max_episode_steps != 1 {
-            return bad(
-                "max_episode_steps",
-                format!(
-                    "the bandit's episodes are one step long; got {}",
-                    self.max_episode_steps
-                ),
-            );
+        if let Some(n) = self.env.kind().and_then(|k| k.fixed_episode_steps()) {
+            if self.max_episode_steps != n {
+                return bad(
+                    "max_episode_steps",
+                    format!(
+                        "{}'s episodes are {n} step(s) long; got {}",
+                        self.env.name(),
+                        self.max_episode_steps
+                    ),
+                );
+            }
         }
         if self.algo == Algo::Qrrl {
             crate::nets::QuantileFamily::new(self.env.layout(), self.saver.qrrl_spread)?;

@@ -27,22 +27,19 @@ pub struct Bandit {
     goal: Vec<f32>,
     /// Steps in this episode (0 or 1).
     steps: u32,
+    /// Episode limit: 1 ([`super::EnvKind::fixed_episode_steps`]; runs are held to it).
+    max_steps: u32,
 }
 
 impl Bandit {
-    /// A fresh bandit.
-    pub fn new() -> Self {
+    /// A fresh bandit with the step limit `max_steps` (1 in every valid run).
+    pub fn new(max_steps: u32) -> Self {
         Self {
             pos: vec![1.0],
             goal: vec![0.0],
             steps: 0,
+            max_steps,
         }
-    }
-}
-
-impl Default for Bandit {
-    fn default() -> Self {
-        Self::new()
     }
 }
 
@@ -62,8 +59,7 @@ impl Env for Bandit {
         self.pos[0] = 1.0 - bandit_reward(action[0]);
         self.steps += 1;
         obs.copy_from_slice(&self.pos);
-        // One step per episode: the limit is 1 whatever the run's.
-        finish_step(&before, &self.pos, &self.goal, self.steps, 1)
+        finish_step(&before, &self.pos, &self.goal, self.steps, self.max_steps)
     }
 
     fn steps(&self) -> u32 {
@@ -97,7 +93,7 @@ mod tests {
         assert!((bandit_reward(-0.75) - 1.0).abs() < 1e-6);
         assert!((bandit_reward(0.375) - 0.162_32).abs() < 1e-5);
         assert!((bandit_reward(2.0) - 0.000_167_7).abs() < 1e-6);
-        let mut b = Bandit::new();
+        let mut b = Bandit::new(1);
         let mut obs = [0.0];
         b.reset(&mut crate::rng::rng_for(0, 0), &mut obs);
         assert_eq!(obs, [1.0]);

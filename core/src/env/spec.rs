@@ -50,6 +50,15 @@ impl EnvKind {
         }
     }
 
+    /// The episode length this preset always has, if it has one (the bandit: 1 step);
+    /// a run of it must use it as its step limit.
+    pub fn fixed_episode_steps(self) -> Option<u32> {
+        match self {
+            Self::Bandit => Some(1),
+            _ => None,
+        }
+    }
+
     /// The layout of this preset at dimension `d`.
     pub fn layout(self, d: usize) -> EnvLayout {
         match self {
@@ -317,7 +326,7 @@ impl EnvSpec {
             Some(EnvKind::Angle) => Ok(Box::new(Angle::new(self.dim(), max_steps))),
             Some(EnvKind::Select) => Ok(Box::new(Select::new(self.dim(), max_steps))),
             Some(EnvKind::Arm) => Ok(Box::new(Arm::new(max_steps))),
-            Some(EnvKind::Bandit) => Ok(Box::new(super::Bandit::new())),
+            Some(EnvKind::Bandit) => Ok(Box::new(super::Bandit::new(max_steps))),
             Some(EnvKind::Point) => Ok(Box::new(super::Point::new(self.dim(), max_steps))),
             None => Err(CoreError::Config(format!(
                 "{self} is not a preset of this build: its actors bring the env"

@@ -108,6 +108,54 @@ impl ParamSet {
     }
 }
 
+/// The index of tensor `name` in published `weights`, checked to have `shape` (actors
+/// index their policy's tensors once per version).
+pub(crate) fn weight_index(
+    weights: &crate::link::PolicyWeights,
+    name: &str,
+    shape: &[usize],
+) -> Result<usize> {
+    let i = weights
+        .tensors
+        .iter()
+        .position(|t| t.name == name)
+        .ok_or_else(|| CoreError::Checkpoint(format!("weights lack {name}")))?;
+    let t = &weights.tensors[i];
+    if t.shape != shape || t.data.len() != t.numel() {
+        return Err(CoreError::Checkpoint(format!(
+            "weights {name} have shape {:?}, expected {shape:?}",
+            t.shape
+        )));
+    }
+    Ok(i)
+}
+
+/// An actor's dense layer on the host: out = x·W + b (W stored [in, out]; zero inputs,
+/// common after a ReLU, are skipped), then ReLU when `relu`.
+pub(crate) fn host_dense(
+    x: &[f32],
+    w: &[f32],
+    b: &[f32],
+    fan_out: usize,
+    relu: bool,
+    out: &mut Vec<f32>,
+) {
+    out.clear();
+    out.extend_from_slice(b);
+    for (i, &xi) in x.iter().enumerate() {
+        if xi != 0.0 {
+            for (o, &wij) in out.iter_mut().zip(&w[i * fan_out..(i + 1) * fan_out]) {
+                *o += xi * wij;
+            }
+        }
+    }
+    if relu {
+        for o in out.iter_mut() {
+            *o = o.max(0.0);
+        }
+    }
+}
+
 /// A ReLU MLP: every layer but the last is followed by ReLU.
 pub(crate) fn mlp_forward(
     layers: &[Linear],

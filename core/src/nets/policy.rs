@@ -235,21 +235,7 @@ pub struct Policy {
 impl Policy {
     /// Checks the weights against the layout and indexes them.
     pub fn new(weights: Arc<PolicyWeights>, layout: EnvLayout, head: HeadConfig) -> Result<Self> {
-        let find = |name: &str, shape: &[usize]| -> Result<usize> {
-            let i = weights
-                .tensors
-                .iter()
-                .position(|t| t.name == name)
-                .ok_or_else(|| CoreError::Checkpoint(format!("weights lack {name}")))?;
-            let t = &weights.tensors[i];
-            if t.shape != shape || t.data.len() != t.numel() {
-                return Err(CoreError::Checkpoint(format!(
-                    "weights {name} have shape {:?}, expected {shape:?}",
-                    t.shape
-                )));
-            }
-            Ok(i)
-        };
+        let find = |name: &str, shape: &[usize]| super::weight_index(&weights, name, shape);
         let mut layers = Vec::new();
         let mut fan_in = layout.obs_dim;
         let heads = TRUNK
@@ -283,22 +269,12 @@ impl Policy {
         a.extend_from_slice(obs);
         let last = self.layers.len() - 1;
         for (li, l) in self.layers.iter().enumerate() {
-            let w = &self.weights.tensors[l.w].data;
-            b.clear();
-            b.extend_from_slice(&self.weights.tensors[l.b].data);
-            for (i, &x) in a.iter().enumerate().take(l.fan_in) {
-                if x != 0.0 {
-                    let row = &w[i * l.fan_out..(i + 1) * l.fan_out];
-                    for (o, &wij) in b.iter_mut().zip(row) {
-                        *o += x * wij;
-                    }
-                }
-            }
-            if li < last {
-                for o in b.iter_mut() {
-                    *o = o.max(0.0);
-                }
-            }
+            let (w, bias) = (
+                &self.weights.tensors[l.w].data,
+                &self.weights.tensors[l.b].data,
+            );
+            let n = l.fan_in.min(a.len());
+            super::host_dense(&a[..n], w, bias, l.fan_out, li < last, b);
             std::mem::swap(a, b);
         }
         mu.clear();

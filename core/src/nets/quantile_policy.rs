@@ -5,7 +5,7 @@
 //! is whatever the network's quantile function makes it (multi-modal included); each
 //! step records its τ. Acting runs in plain Rust over the published weights.
 
-use super::{slack, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, UNBOUNDED_MU};
+use super::{host_dense, slack, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, UNBOUNDED_MU};
 use crate::acting::{ActingPolicy, PolicyFamily};
 use crate::embedding::cosine_embedding_into;
 use crate::env::EnvLayout;
@@ -136,19 +136,7 @@ impl QuantilePolicy {
             super::pcpn::quantile_net_shapes(QUANTILE_PREFIX, layout.obs_dim, layout.continuous);
         let mut idx = [0usize; 8];
         for (slot, (name, shape)) in idx.iter_mut().zip(&shapes) {
-            let i = weights
-                .tensors
-                .iter()
-                .position(|t| &t.name == name)
-                .ok_or_else(|| CoreError::Checkpoint(format!("weights lack {name}")))?;
-            let t = &weights.tensors[i];
-            if &t.shape != shape || t.data.len() != t.numel() {
-                return Err(CoreError::Checkpoint(format!(
-                    "weights {name} have shape {:?}, expected {shape:?}",
-                    t.shape
-                )));
-            }
-            *slot = i;
+            *slot = super::weight_index(&weights, name, shape)?;
         }
         Ok(Self {
             weights,
@@ -167,8 +155,8 @@ impl QuantilePolicy {
     pub fn quantiles(&mut self, obs: &[f32], taus: &[f32], action: &mut Vec<f32>) {
         let c = self.layout.continuous;
         let [mut h, mut z, mut u, mut cos, mut prod] = std::mem::take(&mut self.buf);
-        dense(obs, self.data(0), self.data(1), PCPN_HIDDEN, &mut h);
-        dense(&h, self.data(2), self.data(3), c * PCPN_CHUNK, &mut z);
+        host_dense(obs, self.data(0), self.data(1), PCPN_HIDDEN, true, &mut h);
+        host_dense(&h, self.data(2), self.data(3), c * PCPN_CHUNK, true, &mut z);
         cos.resize(PCPN_CHUNK, 0.0);
         action.clear();
         let (w2, b2, w3, b3) = (self.data(4), self.data(5), self.data(6), self.data(7));
@@ -177,11 +165,12 @@ impl QuantilePolicy {
             cosine_embedding_into(tau, &mut cos);
             prod.clear();
             prod.extend(z[j * e..(j + 1) * e].iter().zip(&cos).map(|(a, b)| a * b));
-            dense(
+            host_dense(
                 &prod,
                 &w2[j * e * hh..(j + 1) * e * hh],
                 &b2[j * hh..(j + 1) * hh],
                 hh,
+                true,
                 &mut u,
             );
             let w = &w3[j * hh..(j + 1) * hh];
@@ -189,22 +178,6 @@ impl QuantilePolicy {
             action.push(u.iter().zip(w).map(|(a, b)| a * b).sum::<f32>() + b3[j] + base);
         }
         self.buf = [h, z, u, cos, prod];
-    }
-}
-
-/// out = relu(x·W + b), W stored [in, out].
-fn dense(x: &[f32], w: &[f32], b: &[f32], fan_out: usize, out: &mut Vec<f32>) {
-    out.clear();
-    out.extend_from_slice(b);
-    for (i, &xi) in x.iter().enumerate() {
-        if xi != 0.0 {
-            for (o, &wij) in out.iter_mut().zip(&w[i * fan_out..(i + 1) * fan_out]) {
-                *o += xi * wij;
-            }
-        }
-    }
-    for o in out.iter_mut() {
-        *o = o.max(0.0);
     }
 }
 
