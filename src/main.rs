@@ -3,7 +3,9 @@
 //! measures the updates against the machine's matmul peak; `saver plot` draws curves.
 
 use clap::{Parser, Subcommand};
-use saver_run::{bench, clients, config, diagnose, eval, plot, pretrain, repro, services, train};
+use saver_run::{
+    act, bench, clients, config, diagnose, eval, plot, pretrain, repro, services, train,
+};
 use std::process::ExitCode;
 
 /// SAVER: state aligned vector rewards with quantile regression RL.
@@ -26,6 +28,8 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Run a trained policy on fresh episodes: success rate, lengths, returns, a picture.
     Eval(eval::EvalArgs),
+    /// Act with a trained policy: observations (JSON lines) on stdin, actions on stdout.
+    Act(act::ActArgs),
     /// Diagnostics: how well a PCPN's input gradient matches the env's true one.
     Diagnose(diagnose::DiagnoseArgs),
     /// Run one of the paper's experiments as a grid of runs, then its figure and table.
@@ -66,6 +70,7 @@ fn main() -> ExitCode {
         Command::Pretrain(a) => pretrain::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Act(a) => act::run(a),
         Command::Diagnose(a) => diagnose::run(a),
         Command::Repro(a) => repro::run(a),
         Command::Plot(a) => plot::run(a),

@@ -317,6 +317,7 @@ impl LearnerLink for GrpcLink {
                 name: reg.name.clone(),
                 session: reg.session,
                 n_envs: reg.n_envs,
+                env: None,
             }))
             .map_err(status_error)?
             .into_inner();

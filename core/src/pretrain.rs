@@ -37,8 +37,9 @@ pub struct Samples {
 pub trait SampleSource {
     /// The layout the samples follow.
     fn layout(&self) -> EnvLayout;
-    /// `n` fresh i.i.d. samples.
-    fn sample(&mut self, n: usize) -> Samples;
+    /// `n` fresh samples (a streamed source fails when its providers cannot give
+    /// them).
+    fn sample(&mut self, n: usize) -> Result<Samples>;
 }
 
 /// Samples from one of the built-in environments.
@@ -67,7 +68,7 @@ impl SampleSource for EnvSampler {
         self.layout
     }
 
-    fn sample(&mut self, n: usize) -> Samples {
+    fn sample(&mut self, n: usize) -> Result<Samples> {
         let l = self.layout;
         let (c, ch) = (l.continuous, l.choices);
         let mut x = Vec::with_capacity(n * l.pcpn_input_dim());
@@ -96,7 +97,7 @@ impl SampleSource for EnvSampler {
             x.extend(sigma.iter().map(|s| (s + 1e-10).ln()));
             delta.extend_from_slice(&step.state_delta);
         }
-        Samples { x, delta, n }
+        Ok(Samples { x, delta, n })
     }
 }
 
@@ -200,7 +201,7 @@ impl Pretrainer {
 
     /// One batch of training; returns its loss.
     pub fn step(&mut self) -> Result<f32> {
-        let s = self.source.sample(self.batch_size);
+        let s = self.source.sample(self.batch_size)?;
         let (v, grads) = match self.path {
             GradPath::Fast => {
                 let taus = uniform01(&mut self.rng, self.pcpn.dim() * s.n * self.k);
@@ -228,7 +229,7 @@ impl Pretrainer {
         let mut rng = rng_for(seed, streams::HELD_OUT);
         let mut total = 0.0;
         for _ in 0..batches {
-            let s = held_out.sample(self.batch_size);
+            let s = held_out.sample(self.batch_size)?;
             total += pcpn_loss(&self.pcpn, &s, self.k, &mut rng, &self.dev)?.to_scalar::<f32>()?;
         }
         Ok(total / batches as f32)
@@ -278,7 +279,10 @@ mod tests {
         let trained = t.evaluate(&mut held_out, 4, 1).unwrap();
 
         // Marginal quantiles per dim from a separate large sample.
-        let big = EnvSampler::new(&spec, 0, 78).unwrap().sample(20_000);
+        let big = EnvSampler::new(&spec, 0, 78)
+            .unwrap()
+            .sample(20_000)
+            .unwrap();
         let d = 2;
         let mut cols: Vec<Vec<f32>> = (0..d)
             .map(|j| big.delta.iter().skip(j).step_by(d).copied().collect())
@@ -293,7 +297,7 @@ mod tests {
         let mut total = 0.0f64;
         let mut count = 0usize;
         for _ in 0..4 {
-            let s = held_out.sample(128);
+            let s = held_out.sample(128).unwrap();
             let taus = uniform01(&mut rng, d * s.n * k); // [d, B, K]
             for j in 0..d {
                 for b in 0..s.n {
@@ -328,7 +332,7 @@ mod tests {
             let layout = spec.layout();
             let mut params = ParamSet::default();
             let pcpn = Pcpn::init(&layout, &mut rng_for(4, 0), &dev, &mut params).unwrap();
-            let s = EnvSampler::new(&spec, 0, 9).unwrap().sample(61);
+            let s = EnvSampler::new(&spec, 0, 9).unwrap().sample(61).unwrap();
             let reference = pcpn_loss(&pcpn, &s, k, &mut rng_for(3, 0), &dev).unwrap();
             let want_loss = reference.to_scalar::<f32>().unwrap();
             let want = reference.backward().unwrap();

@@ -184,7 +184,7 @@ impl TryFrom<&pb::PretrainSettings> for PretrainConfig {
             quantiles: s.quantiles as usize,
             seed: s.seed,
             samples: clap::ValueEnum::from_str(&s.samples, false)
-                .map_err(|_| named("samples", &s.samples, "reset"))?,
+                .map_err(|_| named("samples", &s.samples, "reset, walk"))?,
         };
         p.validate()?;
         Ok(p)

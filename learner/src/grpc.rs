@@ -4,6 +4,7 @@
 
 use crate::Hub;
 use bytes::Bytes;
+use saver_core::env::EnvSpec;
 use saver_core::link::{LinkError, PolicyWeights, Registration};
 use saver_core::rollout::Rollout;
 use saver_core::CoreError;
@@ -293,6 +294,9 @@ impl Learner for LearnerService {
         req: Request<pb::RegisterRequest>,
     ) -> Result<Response<pb::RegisterReply>, Status> {
         let r = req.into_inner();
+        if let Some(env) = &r.env {
+            check_actor_env(env, &self.hub.config().env)?;
+        }
         let hub = self.hub.clone();
         let reg = Registration {
             name: r.name.chars().take(128).collect(),
@@ -510,4 +514,41 @@ pub async fn serve(
         .add_service(service.into_server())
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await
+}
+
+/// Refuses an actor whose declared env is not the run's, saying what differs.
+fn check_actor_env(env: &pb::EnvSpec, run: &EnvSpec) -> Result<(), Status> {
+    let theirs = EnvSpec::try_from(env).map_err(|e| {
+        Status::invalid_argument(format!("the env this actor declares is not valid: {e}"))
+    })?;
+    if &theirs == run {
+        return Ok(());
+    }
+    let (a, b) = (theirs.layout(), run.layout());
+    let why = if theirs.name() != run.name() {
+        format!(
+            "its name is {:?}, the run's {:?}",
+            theirs.name(),
+            run.name()
+        )
+    } else if a != b {
+        format!("its layout is {a:?}, the run's {b:?}")
+    } else {
+        let (a, b) = (theirs.bounds(), run.bounds());
+        match (0..a.obs_low.len())
+            .find(|&k| a.obs_low[k] != b.obs_low[k] || a.obs_high[k] != b.obs_high[k])
+        {
+            Some(k) => format!(
+                "observation entry {k} has bounds [{}, {}], the run's [{}, {}]",
+                a.obs_low[k], a.obs_high[k], b.obs_low[k], b.obs_high[k]
+            ),
+            None => format!(
+                "its max_change is {}, the run's {}",
+                a.max_change, b.max_change
+            ),
+        }
+    };
+    Err(Status::invalid_argument(format!(
+        "this actor's env {theirs} is not the run's env {run}: {why}"
+    )))
 }

@@ -211,7 +211,7 @@ impl Trainer {
             window.extend(&episodes);
             c.episodes += episodes.len() as u64;
             let wall_s = wall_before + start.elapsed().as_secs_f64();
-            c.wall_ms = (wall_s * 1000.0) as u64;
+            c.wall_ms = (wall_s * 1000.0).round() as u64;
             if let Some(stats) = stats {
                 c.steps += batch.steps;
                 let row = MetricsRow {
@@ -258,7 +258,7 @@ impl Trainer {
                 save_to(self.algo.as_ref(), &c, &actors, &window)?;
             }
         }
-        c.wall_ms = ((wall_before + start.elapsed().as_secs_f64()) * 1000.0) as u64;
+        c.wall_ms = ((wall_before + start.elapsed().as_secs_f64()) * 1000.0).round() as u64;
         save_to(self.algo.as_ref(), &c, &actors, &window)?;
         Ok(TrainerOutcome {
             version: c.version,

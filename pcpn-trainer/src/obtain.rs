@@ -41,7 +41,7 @@ pub fn obtain_pcpn(
         (pcpn, info, Origin::Cached)
     } else {
         starting(&store.path_for(spec, p));
-        let report = pretrain_pcpn(spec, p, &dev, progress)?;
+        let report = pretrain_pcpn(spec, p, &dev, None, progress)?;
         let info = store.save(spec, p, &report.tensors, report.meta)?;
         (report.pcpn, info, Origin::Pretrained)
     };

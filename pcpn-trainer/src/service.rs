@@ -2,6 +2,7 @@
 //! its hashes, and pretrains one on request (once per env spec and pretraining
 //! settings, never silently again).
 
+use crate::samples::SampleHub;
 use crate::store::{check_pcpn_bytes, PcpnStore};
 use crate::train::pretrain_pcpn;
 use bytes::Bytes;
@@ -31,6 +32,8 @@ pub struct PcpnService {
     pretraining: Arc<Mutex<()>>,
     /// The token every call must carry and the TLS identity (none by default).
     access: Access,
+    /// Custom envs' samples, streamed by their actors.
+    samples: Arc<SampleHub>,
 }
 
 /// The info message of a PCPN file's bytes (checked as a whole: spec, settings, hash).
@@ -74,6 +77,7 @@ impl PcpnService {
             dir,
             pretraining: Arc::new(Mutex::new(())),
             access: Access::default(),
+            samples: Arc::default(),
         }
     }
 
@@ -198,11 +202,18 @@ impl PcpnStoreApi for PcpnService {
         }
         let store = self.store.clone();
         let shown = spec.to_string();
+        let samples = self.samples.clone();
+        if spec.kind().is_none() {
+            tracing::info!(
+                "pretraining {spec} from samples its actors stream ({} providers connected)",
+                samples.providers_of(&spec)
+            );
+        }
         let saved = tokio::task::spawn_blocking(move || -> Result<PathBuf, String> {
             let dev = saver_core::device();
             let every = (p.batches / 20).max(1);
             let env = spec.to_string();
-            let report = pretrain_pcpn(&spec, &p, &dev, &mut |b| {
+            let report = pretrain_pcpn(&spec, &p, &dev, Some(&samples), &mut |b| {
                 metrics::gauge!("saver_pretrain_batches_done", "env" => env.clone())
                     .set(b.batch as f64);
                 metrics::gauge!("saver_pretrain_batches", "env" => env.clone())
@@ -234,6 +245,21 @@ impl PcpnStoreApi for PcpnService {
             info: Some(info_of(&bytes)?),
             already_present: false,
         }))
+    }
+
+    type ProvideSamplesStream = ReceiverStream<Result<pb::SampleDemand, Status>>;
+
+    async fn provide_samples(
+        &self,
+        req: Request<tonic::Streaming<pb::SampleBatch>>,
+    ) -> Result<Response<Self::ProvideSamplesStream>, Status> {
+        let (tx, rx) = tokio::sync::mpsc::channel(4);
+        tokio::spawn(crate::samples::provide(
+            self.samples.clone(),
+            req.into_inner(),
+            tx,
+        ));
+        Ok(Response::new(ReceiverStream::new(rx)))
     }
 }
 

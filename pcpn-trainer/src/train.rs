@@ -1,14 +1,16 @@
 //! Pretraining a PCPN for an env spec, with divergence detection and a held-out
 //! quantile loss on fresh samples.
 
+use crate::samples::{SampleHub, SHUFFLE};
 use candle_core::Device;
-use saver_core::config::{PretrainConfig, PRETRAIN_EVAL_BATCHES};
+use saver_core::config::{PretrainConfig, SampleDistribution, PRETRAIN_EVAL_BATCHES};
 use saver_core::env::EnvSpec;
 use saver_core::nets::Pcpn;
 use saver_core::pretrain::{EnvSampler, Pretrainer, SampleSource};
 use saver_core::rng::streams;
 use saver_core::{checkpoint, CoreError};
 use std::collections::HashMap;
+use std::sync::Arc;
 
 /// What pretraining reports after each batch.
 pub struct PretrainProgress {
@@ -44,19 +46,52 @@ const CHECK_EVERY: u64 = 50;
 /// A loss this many times the initial held-out loss counts as diverged.
 const DIVERGED_FACTOR: f32 = 100.0;
 
-/// Pretrains a PCPN for `spec` per `p` from the env's own samples; fails on
-/// divergence. Every entry point (`saver train`, `saver pretrain`, the Pretrain RPC)
-/// comes here, so the same settings give the same weights bit for bit.
+/// Pretrains a PCPN for `spec` per `p`; fails on divergence. A built-in env gives its
+/// own samples (every entry point — `saver train`, `saver pretrain`, the Pretrain RPC
+/// — comes here, so the same settings give the same weights bit for bit); a custom
+/// env's come from the actors connected to `streamed` (refused without one), the
+/// first 16 batches of them held out.
 pub fn pretrain_pcpn(
     spec: &EnvSpec,
     p: &PretrainConfig,
     dev: &Device,
+    streamed: Option<&Arc<SampleHub>>,
     progress: &mut dyn FnMut(&PretrainProgress),
 ) -> Result<PretrainReport, CoreError> {
     p.validate()?;
-    let source = Box::new(EnvSampler::new(spec, p.seed, streams::PRETRAIN)?);
-    let mut held_out = EnvSampler::new(spec, p.seed, HELD_OUT_SOURCE)?;
-    pretrain_from(source, &mut held_out, p, dev, progress)
+    p.check_env(spec)?;
+    match p.samples {
+        SampleDistribution::Reset => {
+            let source = Box::new(EnvSampler::new(spec, p.seed, streams::PRETRAIN)?);
+            let mut held_out = EnvSampler::new(spec, p.seed, HELD_OUT_SOURCE)?;
+            pretrain_from(source, &mut held_out, p, dev, progress)
+        }
+        SampleDistribution::Walk => {
+            let hub = streamed.ok_or_else(|| {
+                CoreError::Config(format!(
+                    "{spec} is a custom env: its PCPN is pretrained from samples its actors \
+                     stream, which a pcpn-trainer gathers (`saver pcpn-trainer`; the learner \
+                     with --pcpn http://HOST:PORT and the actors with --pcpn-samples at the \
+                     same address), or give the learner a PCPN file with --pcpn FILE"
+                ))
+            })?;
+            let held = PRETRAIN_EVAL_BATCHES * p.batch_size;
+            let total = p.batches * p.batch_size as u64 + held as u64;
+            let mut source = hub.source(spec, total, p.seed)?;
+            let mut held_out = source.held_out(held)?;
+            let mut report = pretrain_from(Box::new(source), &mut held_out, p, dev, progress)?;
+            report.meta.insert(
+                "samples".into(),
+                format!(
+                    "{total} transitions streamed by actors (walks: each step mu ~ U(-1, 1), \
+                     sigma ~ U(0, 1), a ~ N(mu, sigma^2), from the env's reset to its episode \
+                     end); the first {held} held out, the rest read once through a shuffle \
+                     buffer of {SHUFFLE}"
+                ),
+            );
+            Ok(report)
+        }
+    }
 }
 
 /// Pretrains a PCPN on samples from `source` (any [`SampleSource`]), reporting its

@@ -130,6 +130,7 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                         name: format!("bench-{i}"),
                         session: i as u64,
                         n_envs: 1,
+                        env: None,
                     })
                     .await?
                     .into_inner();

@@ -4,6 +4,7 @@
 //! flags and calls one function here; the end-to-end tests call the same functions.
 
 pub mod access;
+pub mod act;
 pub mod bench;
 pub mod bench_services;
 pub mod clients;

@@ -178,6 +178,7 @@ fn bare_registrations_neither_stall_rounds_nor_pile_up() {
                 name: "flood".into(),
                 session: i,
                 n_envs: 1,
+                env: None,
             };
             c.register(r).await.unwrap();
         }

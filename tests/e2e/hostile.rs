@@ -172,6 +172,7 @@ pub async fn register(
             name: "fuzz".into(),
             session: SESSION,
             n_envs: 1,
+            env: None,
         })
         .await
         .unwrap()

@@ -90,8 +90,15 @@ impl OptimizerKind {
 #[serde(rename_all = "lowercase")]
 pub enum SampleDistribution {
     /// The paper's: an observation from the env's reset distribution, μ ~ U(-1, 1),
-    /// σ ~ U(0, 1), one step with a ~ N(μ, σ²).
+    /// σ ~ U(0, 1), one step with a ~ N(μ, σ²). Built-in envs only.
     Reset,
+    /// Every step of random walks: from the env's reset, each step draws a fresh
+    /// μ ~ U(-1, 1), σ ~ U(0, 1) and a ~ N(μ, σ²), and the walk goes on from where it
+    /// lands until the env ends the episode. Real envs start in a narrow set of states
+    /// (Reacher's joints within ±0.1 rad), so their one-step-from-reset samples would
+    /// miss the states a policy reaches. Custom envs: actors stream these samples
+    /// (saver.proto ProvideSamples).
+    Walk,
 }
 
 impl SampleDistribution {
@@ -99,6 +106,16 @@ impl SampleDistribution {
     pub fn name(self) -> &'static str {
         match self {
             Self::Reset => "reset",
+            Self::Walk => "walk",
+        }
+    }
+
+    /// The distribution an env's PCPN is pretrained on: a built-in env's own samples
+    /// (reset), a custom env's streamed walks.
+    pub fn for_env(env: &crate::env::EnvSpec) -> Self {
+        match env.kind() {
+            Some(_) => Self::Reset,
+            None => Self::Walk,
         }
     }
 }

@@ -173,7 +173,7 @@ impl RunConfig {
                 qrrl_spread: QRRL_SPREAD,
                 qrrl_vector: false,
             },
-            pretrain: PretrainConfig::paper(preset_or_angle(env)),
+            pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
             pcpn_sha256: None,
         }
     }
@@ -187,7 +187,7 @@ impl RunConfig {
     /// settings.
     pub fn recommended(env: &EnvSpec, algo: Algo, steps: u64) -> Self {
         let mut c = Self::paper(env, algo, steps);
-        c.pretrain = PretrainConfig::recommended(preset_or_angle(env));
+        c.pretrain = PretrainConfig::recommended(preset_or_angle(env)).for_env(env);
         if algo == Algo::Qrrl {
             // Advantages stay raw: normalised, the noise of equally good actions is
             // scaled up and drifts the bandit's two modes into one (2 of 5 seeds
@@ -294,6 +294,7 @@ impl RunConfig {
             }
         }
         self.pretrain.validate()?;
+        self.pretrain.check_env(&self.env)?;
         if let Some(n) = self.env.kind().and_then(|k| k.fixed_episode_steps()) {
             if self.max_episode_steps != n {
                 return bad(

@@ -86,6 +86,33 @@ impl PretrainConfig {
         }
     }
 
+    /// These settings for `env`: its sample distribution (a custom env's PCPN learns
+    /// from streamed walks).
+    pub fn for_env(self, env: &EnvSpec) -> Self {
+        Self {
+            samples: SampleDistribution::for_env(env),
+            ..self
+        }
+    }
+
+    /// Refuses a sample distribution `env` cannot give: reset samples come from a
+    /// built-in env, walks from a custom env's actors.
+    pub fn check_env(&self, env: &EnvSpec) -> Result<()> {
+        let want = SampleDistribution::for_env(env);
+        if self.samples != want {
+            return Err(CoreError::Config(format!(
+                "pretrain.samples: {env} takes {:?} samples, not {:?} ({})",
+                want.name(),
+                self.samples.name(),
+                match want {
+                    SampleDistribution::Reset => "a built-in env samples itself",
+                    SampleDistribution::Walk => "a custom env's actors stream random walks",
+                }
+            )));
+        }
+        Ok(())
+    }
+
     /// Checks every field; the message names the field.
     pub fn validate(&self) -> Result<()> {
         let bad =

@@ -1,0 +1,543 @@
+//! Pretraining samples streamed by actors (saver.proto `ProvideSamples`;
+//! docs/ALGORITHM.md §9.3). The store cannot step a custom env, so the actors that
+//! bring it draw the transitions ("walk" samples) and the store pretrains from them.
+//!
+//! A [`SampleHub`] sits between the providers' streams (async, thin) and the
+//! pretraining thread (blocking): the pretraining asks for a number of samples; each
+//! connected provider of that env is handed demands of [`CHUNK`] samples while fewer
+//! than [`QUEUED_CHUNKS`] chunks are queued or on their way; what arrives is checked
+//! against the env's layout and bounds, queued, and read through a shuffle buffer of
+//! [`SHUFFLE`] samples (a provider's chunk is consecutive steps of its walks; the
+//! buffer mixes providers and times). A provider that leaves mid-chunk gives its
+//! unfilled part back to the others; one that sends a bad sample is cut off with
+//! INVALID_ARGUMENT and its chunk is given back too.
+
+use rand::Rng;
+use saver_core::env::EnvSpec;
+use saver_core::pretrain::{SampleSource, Samples};
+use saver_core::rng::{rng_for, SaverRng};
+use saver_core::{CoreError, Result};
+use saver_proto::pb;
+use std::collections::VecDeque;
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+/// Samples per demand.
+pub const CHUNK: u32 = 4096;
+/// Chunks queued or on their way at most (bounds the store's memory).
+pub const QUEUED_CHUNKS: u64 = 8;
+/// Samples in the shuffle buffer.
+pub const SHUFFLE: usize = 65_536;
+/// How often a waiting pretraining says what it waits for.
+const SAY_EVERY: Duration = Duration::from_secs(30);
+/// Slack on the bounds a sample is checked against (f32 rounding of a provider's f64).
+fn slack(b: f32) -> f32 {
+    b.abs() * 1e-5 + 1e-6
+}
+
+/// What the pretraining in progress wants.
+struct Want {
+    /// The env it pretrains for.
+    spec: EnvSpec,
+    /// Samples not yet demanded of any provider.
+    unassigned: u64,
+    /// Samples demanded and not yet arrived.
+    in_flight: u64,
+    /// Arrived, checked, not yet read.
+    queued: VecDeque<Samples>,
+    /// Samples received so far.
+    received: u64,
+    /// Of.
+    total: u64,
+}
+
+#[derive(Default)]
+struct HubState {
+    /// The pretraining that waits for samples (one at a time).
+    want: Option<Want>,
+    /// Connected providers: their env.
+    providers: Vec<(u64, EnvSpec)>,
+    /// Next provider id.
+    next_id: u64,
+}
+
+/// Connects sample providers to the pretraining that needs their samples.
+pub struct SampleHub {
+    state: Mutex<HubState>,
+    /// Samples arrived (wakes the pretraining thread).
+    arrived: Condvar,
+    /// Work may be there (wakes the providers' tasks).
+    work: tokio::sync::watch::Sender<u64>,
+}
+
+impl Default for SampleHub {
+    fn default() -> Self {
+        Self {
+            state: Mutex::default(),
+            arrived: Condvar::new(),
+            work: tokio::sync::watch::channel(0).0,
+        }
+    }
+}
+
+impl SampleHub {
+    fn lock(&self) -> MutexGuard<'_, HubState> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn wake_providers(&self) {
+        self.work.send_modify(|g| *g += 1);
+    }
+
+    /// Providers connected for `spec`.
+    pub fn providers_of(&self, spec: &EnvSpec) -> usize {
+        self.lock()
+            .providers
+            .iter()
+            .filter(|(_, s)| s == spec)
+            .count()
+    }
+
+    /// A provider of `spec` joins; its id.
+    fn join(&self, spec: EnvSpec) -> u64 {
+        let mut s = self.lock();
+        let id = s.next_id;
+        s.next_id += 1;
+        tracing::info!("sample provider {id} for {spec} connected");
+        s.providers.push((id, spec));
+        id
+    }
+
+    fn leave(&self, id: u64) {
+        self.lock().providers.retain(|(p, _)| *p != id);
+    }
+
+    /// A demand for provider of `spec`, if the pretraining needs one now: (count,
+    /// received, total).
+    fn take(&self, spec: &EnvSpec) -> Option<(u32, u64, u64)> {
+        let mut s = self.lock();
+        let w = s.want.as_mut().filter(|w| &w.spec == spec)?;
+        let queued: u64 = w.queued.iter().map(|q| q.n as u64).sum();
+        if w.unassigned == 0 || queued + w.in_flight >= QUEUED_CHUNKS * CHUNK as u64 {
+            return None;
+        }
+        let n = w.unassigned.min(CHUNK as u64);
+        w.unassigned -= n;
+        w.in_flight += n;
+        Some((n as u32, w.received, w.total))
+    }
+
+    /// Checked samples of `spec` arrived.
+    fn deliver(&self, spec: &EnvSpec, samples: Samples) {
+        let mut s = self.lock();
+        if let Some(w) = s.want.as_mut().filter(|w| &w.spec == spec) {
+            let n = samples.n as u64;
+            w.in_flight = w.in_flight.saturating_sub(n);
+            w.received += n;
+            w.queued.push_back(samples);
+            self.arrived.notify_all();
+        }
+    }
+
+    /// `n` demanded samples of `spec` will not come: they go to another provider.
+    fn give_back(&self, spec: &EnvSpec, n: u64) {
+        let mut s = self.lock();
+        if let Some(w) = s.want.as_mut().filter(|w| &w.spec == spec) {
+            w.in_flight = w.in_flight.saturating_sub(n);
+            w.unassigned += n;
+        }
+        drop(s);
+        self.wake_providers();
+    }
+
+    /// A source of `total` streamed samples of `spec` (refused while another
+    /// pretraining waits for samples), drawn through a shuffle buffer seeded by `seed`.
+    pub fn source(self: &Arc<Self>, spec: &EnvSpec, total: u64, seed: u64) -> Result<Streamed> {
+        let mut s = self.lock();
+        if let Some(w) = &s.want {
+            return Err(CoreError::Config(format!(
+                "samples of {} are being gathered for another pretraining",
+                w.spec
+            )));
+        }
+        s.want = Some(Want {
+            spec: spec.clone(),
+            unassigned: total,
+            in_flight: 0,
+            queued: VecDeque::new(),
+            received: 0,
+            total,
+        });
+        drop(s);
+        self.wake_providers();
+        Ok(Streamed {
+            hub: self.clone(),
+            spec: spec.clone(),
+            buffer: Samples {
+                x: Vec::new(),
+                delta: Vec::new(),
+                n: 0,
+            },
+            pending: VecDeque::new(),
+            left: total,
+            rng: rng_for(seed, saver_core::rng::streams::PRETRAIN),
+        })
+    }
+
+    /// The next chunk of samples for the pretraining of `spec`; waits (saying so every
+    /// 30 s) until one arrives.
+    fn next_chunk(&self, spec: &EnvSpec) -> Samples {
+        let mut s = self.lock();
+        let mut said = Instant::now();
+        loop {
+            if let Some(chunk) = s.want.as_mut().and_then(|w| w.queued.pop_front()) {
+                drop(s);
+                self.wake_providers();
+                return chunk;
+            }
+            s = self
+                .arrived
+                .wait_timeout(s, Duration::from_secs(1))
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
+            if said.elapsed() >= SAY_EVERY {
+                said = Instant::now();
+                let providers = s.providers.iter().filter(|(_, p)| p == spec).count();
+                let (got, of) = s.want.as_ref().map_or((0, 0), |w| (w.received, w.total));
+                tracing::info!(
+                    "pretraining {spec}: waiting for samples from actors ({providers} \
+                     providers connected; {got} of {of} samples arrived)"
+                );
+            }
+        }
+    }
+
+    fn finish(&self) {
+        self.lock().want = None;
+        self.wake_providers();
+    }
+}
+
+/// Samples streamed by the providers of one env, read through a shuffle buffer:
+/// each arriving sample is used once.
+pub struct Streamed {
+    hub: Arc<SampleHub>,
+    spec: EnvSpec,
+    /// The shuffle buffer.
+    buffer: Samples,
+    /// Arrived samples not yet in the buffer (rows from `pending.front()` onward).
+    pending: VecDeque<(Samples, usize)>,
+    /// Samples not yet taken from the hub.
+    left: u64,
+    rng: SaverRng,
+}
+
+impl Drop for Streamed {
+    fn drop(&mut self) {
+        self.hub.finish();
+    }
+}
+
+impl Streamed {
+    /// The next arrived sample (x row, delta row), if any is left.
+    fn next_row(&mut self) -> Option<(Vec<f32>, Vec<f32>)> {
+        let l = self.spec.layout();
+        let (xw, d) = (l.pcpn_input_dim(), l.aligned_dim);
+        loop {
+            if let Some((chunk, at)) = self.pending.front_mut() {
+                if *at < chunk.n {
+                    let i = *at;
+                    *at += 1;
+                    return Some((
+                        chunk.x[i * xw..(i + 1) * xw].to_vec(),
+                        chunk.delta[i * d..(i + 1) * d].to_vec(),
+                    ));
+                }
+                self.pending.pop_front();
+                continue;
+            }
+            if self.left == 0 {
+                return None;
+            }
+            let chunk = self.hub.next_chunk(&self.spec);
+            self.left = self.left.saturating_sub(chunk.n as u64);
+            self.pending.push_back((chunk, 0));
+        }
+    }
+
+    /// The first `n` samples in the order they arrived, apart from the rest (a
+    /// held-out set).
+    pub fn held_out(&mut self, n: usize) -> Result<Replay> {
+        let mut s = Samples {
+            x: Vec::new(),
+            delta: Vec::new(),
+            n: 0,
+        };
+        while s.n < n {
+            let (x, d) = self.next_row().ok_or_else(|| exhausted(n))?;
+            s.x.extend(x);
+            s.delta.extend(d);
+            s.n += 1;
+        }
+        Ok(Replay {
+            layout: self.spec.layout(),
+            samples: s,
+            at: 0,
+        })
+    }
+}
+
+fn exhausted(n: usize) -> CoreError {
+    CoreError::Config(format!(
+        "pretraining asked for more streamed samples than it announced ({n} more)"
+    ))
+}
+
+impl SampleSource for Streamed {
+    fn layout(&self) -> saver_core::env::EnvLayout {
+        self.spec.layout()
+    }
+
+    fn sample(&mut self, n: usize) -> Result<Samples> {
+        let l = self.spec.layout();
+        let (xw, d) = (l.pcpn_input_dim(), l.aligned_dim);
+        while self.buffer.n < SHUFFLE {
+            let Some((x, dl)) = self.next_row() else {
+                break;
+            };
+            self.buffer.x.extend(x);
+            self.buffer.delta.extend(dl);
+            self.buffer.n += 1;
+        }
+        let mut out = Samples {
+            x: Vec::with_capacity(n * xw),
+            delta: Vec::with_capacity(n * d),
+            n,
+        };
+        for _ in 0..n {
+            if self.buffer.n == 0 {
+                return Err(exhausted(n));
+            }
+            let i = self.rng.random_range(0..self.buffer.n);
+            out.x
+                .extend_from_slice(&self.buffer.x[i * xw..(i + 1) * xw]);
+            out.delta
+                .extend_from_slice(&self.buffer.delta[i * d..(i + 1) * d]);
+            // The slot takes the next arrival, or the buffer's last sample.
+            let (x, dl) = match self.next_row() {
+                Some(row) => row,
+                None => {
+                    let last = self.buffer.n - 1;
+                    let row = (
+                        self.buffer.x[last * xw..].to_vec(),
+                        self.buffer.delta[last * d..].to_vec(),
+                    );
+                    self.buffer.x.truncate(last * xw);
+                    self.buffer.delta.truncate(last * d);
+                    self.buffer.n = last;
+                    if i == last {
+                        continue;
+                    }
+                    row
+                }
+            };
+            self.buffer.x[i * xw..(i + 1) * xw].copy_from_slice(&x);
+            self.buffer.delta[i * d..(i + 1) * d].copy_from_slice(&dl);
+        }
+        Ok(out)
+    }
+}
+
+/// A fixed set of samples, served in order and again from the start (the held-out
+/// set: the loss before and after pretraining is measured on the same samples).
+pub struct Replay {
+    layout: saver_core::env::EnvLayout,
+    samples: Samples,
+    at: usize,
+}
+
+impl SampleSource for Replay {
+    fn layout(&self) -> saver_core::env::EnvLayout {
+        self.layout
+    }
+
+    fn sample(&mut self, n: usize) -> Result<Samples> {
+        let (xw, d) = (self.layout.pcpn_input_dim(), self.layout.aligned_dim);
+        let mut out = Samples {
+            x: Vec::with_capacity(n * xw),
+            delta: Vec::with_capacity(n * d),
+            n,
+        };
+        for _ in 0..n {
+            let i = self.at % self.samples.n.max(1);
+            self.at += 1;
+            out.x
+                .extend_from_slice(&self.samples.x[i * xw..(i + 1) * xw]);
+            out.delta
+                .extend_from_slice(&self.samples.delta[i * d..(i + 1) * d]);
+        }
+        Ok(out)
+    }
+}
+
+/// A provider's batch as samples of `spec`, at most `room` of them, every value
+/// checked: lengths, finite, obs within the env's bounds, μ in [-1, 1], log σ in
+/// [ln 1e-10, 0], each aligned change within the env's largest step.
+pub fn check_batch(spec: &EnvSpec, b: &pb::SampleBatch, room: u32) -> Result<Samples> {
+    let l = spec.layout();
+    let bounds = spec.bounds();
+    let bad = |why: String| Err(CoreError::Data(format!("sample batch for {spec}: {why}")));
+    let n = b.n as usize;
+    if b.n == 0 || b.n > room {
+        return bad(format!(
+            "n = {} where 1..={room} samples are still owed",
+            b.n
+        ));
+    }
+    for (what, len, width) in [
+        ("obs", b.obs.len(), l.obs_dim),
+        ("mu", b.mu.len(), l.mu_dim()),
+        ("log_std", b.log_std.len(), l.log_std_dim()),
+        ("delta", b.delta.len(), l.aligned_dim),
+    ] {
+        if len != n * width {
+            return bad(format!(
+                "{what} has {len} values, not n x {width} = {}",
+                n * width
+            ));
+        }
+    }
+    for i in 0..n {
+        for k in 0..l.obs_dim {
+            let (v, lo, hi) = (
+                b.obs[i * l.obs_dim + k],
+                bounds.obs_low[k],
+                bounds.obs_high[k],
+            );
+            if !(v >= lo - slack(lo) && v <= hi + slack(hi)) {
+                return bad(format!(
+                    "sample {i}: observation entry {k} = {v} is outside the env's declared \
+                     bounds [{lo}, {hi}]"
+                ));
+            }
+        }
+        for (j, &m) in b.mu[i * l.mu_dim()..(i + 1) * l.mu_dim()]
+            .iter()
+            .enumerate()
+        {
+            if !(-1.0 - slack(1.0)..=1.0 + slack(1.0)).contains(&m) {
+                return bad(format!("sample {i}: mu[{j}] = {m} is outside [-1, 1]"));
+            }
+        }
+        let lo = (1e-10f32).ln();
+        let c = l.log_std_dim();
+        for (j, &s) in b.log_std[i * c..(i + 1) * c].iter().enumerate() {
+            if !(lo - slack(lo)..=slack(0.0)).contains(&s) {
+                return bad(format!(
+                    "sample {i}: log_std[{j}] = {s} is outside [ln 1e-10, 0] (sigma ~ U(0, 1))"
+                ));
+            }
+        }
+        let change = bounds.max_change + slack(bounds.max_change);
+        for (j, &dl) in b.delta[i * l.aligned_dim..(i + 1) * l.aligned_dim]
+            .iter()
+            .enumerate()
+        {
+            if dl.is_nan() || dl.abs() > change {
+                return bad(format!(
+                    "sample {i}: delta[{j}] = {dl} is beyond the env's largest step +-{}",
+                    bounds.max_change
+                ));
+            }
+        }
+    }
+    let mut x = Vec::with_capacity(n * l.pcpn_input_dim());
+    for i in 0..n {
+        x.extend_from_slice(&b.obs[i * l.obs_dim..(i + 1) * l.obs_dim]);
+        x.extend_from_slice(&b.mu[i * l.mu_dim()..(i + 1) * l.mu_dim()]);
+        x.extend_from_slice(&b.log_std[i * l.log_std_dim()..(i + 1) * l.log_std_dim()]);
+    }
+    Ok(Samples {
+        x,
+        delta: b.delta.clone(),
+        n,
+    })
+}
+
+/// Serves one provider's `ProvideSamples` call: its first message names its env;
+/// then it answers demands until it leaves, the store stops, or it sends a bad
+/// sample (the stream then ends with INVALID_ARGUMENT, saying which).
+pub async fn provide(
+    hub: Arc<SampleHub>,
+    mut inbound: tonic::Streaming<pb::SampleBatch>,
+    tx: tokio::sync::mpsc::Sender<std::result::Result<pb::SampleDemand, tonic::Status>>,
+) {
+    use tokio_stream::StreamExt;
+    let invalid = |e: &dyn std::fmt::Display| tonic::Status::invalid_argument(e.to_string());
+    let spec = match inbound.next().await {
+        Some(Ok(hello)) => match hello.env.as_ref().map(EnvSpec::try_from) {
+            Some(Ok(spec)) if spec.kind().is_none() => spec,
+            Some(Ok(spec)) => {
+                let msg = format!("{spec} is a built-in env: the store samples it itself");
+                let _ = tx.send(Err(tonic::Status::invalid_argument(msg))).await;
+                return;
+            }
+            Some(Err(e)) => {
+                let _ = tx.send(Err(invalid(&e))).await;
+                return;
+            }
+            None => {
+                let msg = "the first SampleBatch must name the env (env, n = 0)";
+                let _ = tx.send(Err(tonic::Status::invalid_argument(msg))).await;
+                return;
+            }
+        },
+        _ => return,
+    };
+    let id = hub.join(spec.clone());
+    let mut work = hub.work.subscribe();
+    loop {
+        let Some((count, received, total)) = hub.take(&spec) else {
+            tokio::select! {
+                changed = work.changed() => if changed.is_err() { break },
+                _ = tx.closed() => break,
+            }
+            continue;
+        };
+        let demand = pb::SampleDemand {
+            env: Some((&spec).into()),
+            count,
+            batches_done: (received / CHUNK as u64) as u32,
+            batches: total.div_ceil(CHUNK as u64),
+        };
+        if tx.send(Ok(demand)).await.is_err() {
+            hub.give_back(&spec, count as u64);
+            break;
+        }
+        let mut got = 0u32;
+        while got < count {
+            match inbound.next().await {
+                Some(Ok(b)) => match check_batch(&spec, &b, count - got) {
+                    Ok(s) => {
+                        got += s.n as u32;
+                        hub.deliver(&spec, s);
+                    }
+                    Err(e) => {
+                        tracing::warn!("sample provider {id}: {e}; cut off");
+                        hub.give_back(&spec, (count - got) as u64);
+                        let _ = tx.send(Err(invalid(&e))).await;
+                        hub.leave(id);
+                        return;
+                    }
+                },
+                _ => {
+                    hub.give_back(&spec, (count - got) as u64);
+                    hub.leave(id);
+                    tracing::info!("sample provider {id} for {spec} left");
+                    return;
+                }
+            }
+        }
+    }
+    hub.leave(id);
+}

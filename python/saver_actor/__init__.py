@@ -1,0 +1,15 @@
+"""saver-actor: SAVER actors for any Gymnasium environment.
+
+    from saver_actor import Actor, Connection, EnvDecl, provide_samples
+
+Declare which observation entries are the state-aligned position (EnvDecl), run an
+Actor against a `saver learner` (A2C, SAVER or QRRL) and, for SAVER, let
+provide_samples feed the pcpn-trainer the transitions its PCPN is pretrained on.
+"""
+from .actor import Actor, Connection, LinkLost, Refused, RunFinished, Summary
+from .env import EnvDecl, EnvError
+from .policy import Gaussian, Quantile, policy_for
+from .samples import provide_samples
+
+__all__ = ["Actor", "Connection", "EnvDecl", "EnvError", "Gaussian", "LinkLost", "Quantile", "Refused",
+           "RunFinished", "Summary", "policy_for", "provide_samples"]

@@ -1,0 +1,110 @@
+"""python -m saver_actor (or saver-actor): act for a learner, provide PCPN samples,
+print the learner's [env] section, or time the actor against the bare env.
+
+  saver-actor act      --factory saver_actor.examples:reacher --learner http://127.0.0.1:50051 --envs 4
+  saver-actor act      --env-id Pendulum-v1 --aligned 0:2 --max-change 0.2 ...
+  saver-actor samples  --factory ... --pcpn http://127.0.0.1:50052
+  saver-actor describe --factory ...
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import threading
+
+from .actor import Actor, Connection, Refused
+from .env import EnvDecl, EnvError
+from .samples import provide_samples
+
+
+def _floats(s):
+    return [float(v) for v in s.split(",")] if s else None
+
+
+def env_of(args):
+    """(make_env, decl) from --factory module:function or from --env-id and the flags."""
+    if args.factory:
+        mod, _, fn = args.factory.partition(":")
+        if not fn:
+            sys.exit(f"--factory {args.factory!r}: expected module:function")
+        return getattr(importlib.import_module(mod), fn)()
+    if not args.env_id or not args.aligned or args.max_change is None:
+        sys.exit("give --factory module:function, or --env-id with --aligned and --max-change")
+    import gymnasium as gym
+
+    kwargs = json.loads(args.env_kwargs) if args.env_kwargs else {}
+
+    def make_env():
+        return gym.make(args.env_id, **kwargs)
+
+    probe = make_env()
+    decl = EnvDecl.for_env(probe, name=args.name or args.env_id.replace("/", "-").lower(), aligned=args.aligned,
+                           max_change=args.max_change, obs_low=_floats(args.obs_low), obs_high=_floats(args.obs_high),
+                           goal=args.goal, success_radius=args.success_radius)
+    probe.close()
+    return make_env, decl
+
+
+def connection(url, args):
+    token = open(args.token_file).read().strip() if args.token_file else None
+    ca = open(args.ca, "rb").read() if args.ca else None
+    return Connection(url=url, token=token, ca=ca)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="saver-actor", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe")}
+    for p in cmds.values():
+        p.add_argument("--factory", help="module:function returning (make_env, EnvDecl)")
+        p.add_argument("--env-id", help="a Gymnasium env id (with --aligned and --max-change)")
+        p.add_argument("--env-kwargs", help="JSON keyword arguments of gym.make")
+        p.add_argument("--name", help="the env's name in the run (default: from the id)")
+        p.add_argument("--aligned", help="observation entries of the state-aligned position, START:STOP")
+        p.add_argument("--goal", help="observation entries of the goal, START:STOP (default: goal 0)")
+        p.add_argument("--max-change", type=float, help="largest one-step change of an aligned entry")
+        p.add_argument("--obs-low", help="comma-separated lower bound of every observation entry")
+        p.add_argument("--obs-high", help="comma-separated upper bound of every observation entry")
+        p.add_argument("--success-radius", type=float, help="success when every |p - g| is below it")
+        p.add_argument("--token-file", help="the learner's (and store's) token")
+        p.add_argument("--ca", help="CA certificate (PEM) of https:// servers")
+    a = cmds["act"]
+    a.add_argument("--learner", default="http://127.0.0.1:50051")
+    a.add_argument("--envs", type=int, default=1, help="env instances stepped per rollout")
+    a.add_argument("--actor-name", help="name in the learner's logs")
+    a.add_argument("--pcpn-samples", metavar="URL", help="also answer this pcpn-trainer's demands for samples")
+    a.add_argument("--connect-timeout", type=float, default=600.0)
+    a.add_argument("--seed", type=int, default=0, help="seed of the PCPN samples")
+    cmds["samples"].add_argument("--pcpn", required=True, metavar="URL", help="the pcpn-trainer")
+    cmds["samples"].add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    try:
+        make_env, decl = env_of(args)
+        if args.cmd == "describe":
+            print(decl.toml(), end="")
+            return 0
+        if args.cmd == "samples":
+            n = provide_samples(make_env, decl, connection(args.pcpn, args), seed=args.seed)
+            print(f"sample provider: the store closed the call after {n} samples", file=sys.stderr)
+            return 0
+        if args.pcpn_samples:
+            conn = connection(args.pcpn_samples, args)
+            threading.Thread(target=provide_samples, args=(make_env, decl, conn),
+                             kwargs={"seed": args.seed, "log": lambda m: print(m, file=sys.stderr)},
+                             daemon=True).start()
+        actor = Actor(make_env, decl, connection(args.learner, args), n_envs=args.envs, name=args.actor_name,
+                      give_up=args.connect_timeout, log=lambda m: print(m, file=sys.stderr))
+        s = actor.run()
+        print(f"{actor.name}: run finished; {s.rollouts} rollouts, {s.steps} env steps, {s.episodes} episodes "
+              f"({s.successes} successes) in {s.seconds:.1f} s", file=sys.stderr)
+        return 0
+    except (EnvError, Refused) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

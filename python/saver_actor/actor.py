@@ -1,0 +1,368 @@
+"""A SAVER actor over any Gymnasium environment: registers with a learner, steps its
+envs with the newest published weights, and streams rollouts (saver.proto), as the
+Rust `saver actor` does. Several envs per process (one batched forward pass per
+step), sync and async runs, token and TLS, and reconnection with jittered backoff
+when the learner is lost.
+"""
+from __future__ import annotations
+
+import queue
+import random
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import grpc
+import numpy as np
+from safetensors.numpy import load as load_safetensors
+
+from ._proto import saver_pb2 as pb
+from ._proto import saver_pb2_grpc as pb_grpc
+from .env import EnvDecl, EnvError
+from .policy import policy_for
+
+MAX_MESSAGE = 64 << 20
+
+
+class RunFinished(Exception):
+    """The learner's run is over."""
+
+
+class LinkLost(Exception):
+    """The learner went away or forgot this actor: register again."""
+
+
+class Refused(Exception):
+    """The learner refused what this actor sent, for a reason reconnecting does not mend."""
+
+
+@dataclass
+class Connection:
+    """Where the learner is and how to reach it: URL (http://host:port, or https://
+    with `ca`, the PEM of its CA), and the token its calls need, if any."""
+
+    url: str = "http://127.0.0.1:50051"
+    token: Optional[str] = None
+    ca: Optional[bytes] = None
+
+    def channel(self) -> grpc.Channel:
+        opts = [("grpc.max_receive_message_length", MAX_MESSAGE), ("grpc.max_send_message_length", MAX_MESSAGE)]
+        if self.url.startswith("https://"):
+            creds = grpc.ssl_channel_credentials(root_certificates=self.ca)
+            return grpc.secure_channel(self.url[len("https://"):], creds, options=opts)
+        if self.url.startswith("http://"):
+            return grpc.insecure_channel(self.url[len("http://"):], options=opts)
+        raise ValueError(f"{self.url!r}: a learner URL starts with http:// or https://")
+
+    def metadata(self, *extra) -> list:
+        md = list(extra)
+        if self.token:
+            md.append(("authorization", f"Bearer {self.token}"))
+        return md
+
+
+@dataclass
+class Summary:
+    rollouts: int = 0
+    steps: int = 0
+    episodes: int = 0
+    successes: int = 0
+    registrations: int = 0
+    seconds: float = 0.0
+    env_seconds: float = 0.0  # time inside env.step / env.reset
+
+
+def _status_error(e: grpc.RpcError, what: str) -> Exception:
+    code, msg = e.code(), e.details()
+    if code == grpc.StatusCode.OUT_OF_RANGE:
+        return RunFinished(msg)
+    if code in (grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.UNAUTHENTICATED,
+                grpc.StatusCode.PERMISSION_DENIED, grpc.StatusCode.RESOURCE_EXHAUSTED):
+        return Refused(f"{what}: {code.name}: {msg}")
+    return LinkLost(f"{what}: {code.name}: {msg}")
+
+
+class _Weights:
+    """The newest weights from WatchWeights, on a thread of its own."""
+
+    def __init__(self, stub, conn: Connection):
+        self.cond = threading.Condition()
+        self.latest = None  # (version, tensors)
+        self.error: Optional[Exception] = None
+        self.call = stub.WatchWeights(pb.WatchRequest(by_file=False), metadata=conn.metadata())
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        try:
+            for w in self.call:
+                tensors = load_safetensors(w.safetensors)
+                with self.cond:
+                    self.latest = (w.version, tensors)
+                    self.cond.notify_all()
+            err: Exception = LinkLost("the weights stream ended")
+        except grpc.RpcError as e:
+            err = _status_error(e, "WatchWeights")
+        except Exception as e:  # undecodable weights
+            err = Refused(f"weights: {e}")
+        with self.cond:
+            self.error = err
+            self.cond.notify_all()
+
+    def wait(self, min_version: int, timeout: Optional[float]):
+        """The newest weights once their version is >= min_version (or, after `timeout`
+        seconds, whatever is newest)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self.cond:
+            while self.latest is None or self.latest[0] < min_version:
+                if self.error is not None:
+                    raise self.error
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    if self.latest is not None:
+                        break
+                    left = 1.0
+                self.cond.wait(left if left is not None else 1.0)
+            return self.latest
+
+    def close(self):
+        self.call.cancel()
+
+
+class _Rollouts:
+    """The StreamRollouts call: rollouts go into a queue its request iterator drains;
+    refusals (the only acks asked for) come back on a thread."""
+
+    def __init__(self, stub, conn: Connection, actor_id: int, session: int):
+        self.q: "queue.Queue" = queue.Queue(maxsize=4)
+        self.error: Optional[Exception] = None
+        md = conn.metadata(("x-saver-actor-id", str(actor_id)), ("x-saver-session", str(session)),
+                           ("x-saver-acks", "refusals"))
+        self.call = stub.StreamRollouts(self._requests(), metadata=md)
+        self.thread = threading.Thread(target=self._acks, daemon=True)
+        self.thread.start()
+
+    def _requests(self):
+        while True:
+            r = self.q.get()
+            if r is None:
+                return
+            yield r
+
+    def _acks(self):
+        try:
+            for ack in self.call:
+                if not ack.accepted:
+                    code = grpc.StatusCode.INVALID_ARGUMENT
+                    for c in grpc.StatusCode:
+                        if c.value[0] == ack.code:
+                            code = c
+                    if code == grpc.StatusCode.FAILED_PRECONDITION:
+                        self.error = LinkLost(f"rollout {ack.seq} refused: {ack.error}")
+                    elif code == grpc.StatusCode.OUT_OF_RANGE:
+                        self.error = RunFinished(ack.error)
+                    elif code == grpc.StatusCode.UNAVAILABLE:
+                        self.error = LinkLost(f"rollout {ack.seq}: {ack.error}")
+                    else:
+                        self.error = Refused(f"the learner refused rollout {ack.seq} ({code.name}): {ack.error}")
+                    return
+            self.error = self.error or LinkLost("the rollout stream ended")
+        except grpc.RpcError as e:
+            self.error = _status_error(e, "StreamRollouts")
+
+    def send(self, r: "pb.Rollout"):
+        while True:
+            if self.error is not None:
+                raise self.error
+            try:
+                self.q.put(r, timeout=0.5)
+                return
+            except queue.Full:
+                continue
+
+    def close(self):
+        try:
+            self.q.put_nowait(None)
+        except queue.Full:
+            pass
+        self.call.cancel()
+
+
+class Actor:
+    """Acts for a learner with `n_envs` instances of `make_env()` declared by `decl`.
+
+    `run()` registers, acts until the run finishes (or `stop` is set), reconnecting
+    when the learner is lost for up to `give_up` seconds, and returns a Summary.
+    """
+
+    def __init__(self, make_env: Callable, decl: EnvDecl, conn: Connection, n_envs: int = 1,
+                 name: Optional[str] = None, give_up: float = 600.0, log: Callable = print):
+        if n_envs < 1:
+            raise ValueError("n_envs must be >= 1")
+        self.make_env, self.decl, self.conn = make_env, decl, conn
+        self.n_envs = n_envs
+        self.name = name or f"py-actor-{random.getrandbits(24):06x}"
+        self.give_up, self.log = give_up, log
+        self.envs = [make_env() for _ in range(n_envs)]
+        self.stop = threading.Event()
+        self.summary = Summary()
+
+    # ---- one registration ----------------------------------------------------------
+    def _register(self, stub):
+        reply = stub.Register(pb.RegisterRequest(name=self.name, session=random.getrandbits(63),
+                                                 n_envs=self.n_envs, env=self.decl.spec()),
+                              metadata=self.conn.metadata(), timeout=30)
+        s = reply.settings
+        self.decl.check_run(s.env)
+        limit = s.max_episode_steps
+        for env in self.envs:
+            own = getattr(getattr(env, "spec", None), "max_episode_steps", None)
+            if own is not None and own < limit:
+                raise EnvError(
+                    f"{self.decl.name}: the env ends its episodes at {own} steps (its TimeLimit) but the run's "
+                    f"step limit is {limit}; set max_episode_steps = {own} in the learner's config")
+        return reply
+
+    def _session(self, stub) -> None:
+        reply = self._register(stub)
+        s = reply.settings
+        self.summary.registrations += 1
+        d = self.decl
+        n, e = s.rollout, self.n_envs
+        params = dict(s.policy.params)
+        rng = np.random.default_rng([s.seed, 1000 + reply.actor_id])
+        weights = _Weights(stub, self.conn)
+        rollouts = _Rollouts(stub, self.conn, reply.actor_id, reply.session)
+        try:
+            # Fresh envs for every registration: the learner counts episodes from seq 0.
+            obs = np.stack([self._reset(i, s.seed, reply.actor_id) for i in range(e)])
+            running = np.zeros(e, dtype=np.int64)
+            returns = np.zeros(e, dtype=np.float32)
+            want, seq, interval, last, policy = 0, 0, 0.01, None, None
+            while not self.stop.is_set():
+                timeout = None if s.mode == "sync" or seq == 0 else min(max(2 * interval, 0.002), 0.5)
+                version, tensors = weights.wait(want, timeout)
+                now = time.monotonic()
+                if last is not None and version > last[0]:
+                    interval = 0.8 * interval + 0.2 * (now - last[1]) / (version - last[0])
+                if last is None or version > last[0]:
+                    last = (version, now)
+                if policy is None or policy_version != version:
+                    policy, policy_version = policy_for(s.policy.family, tensors, d.spec().layout, params), version
+                msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps)
+                msg.actor_id, msg.session, msg.seq, msg.policy_version = reply.actor_id, reply.session, seq, version
+                rollouts.send(msg)
+                self.summary.rollouts += 1
+                seq += 1
+                want = version + 1
+        finally:
+            rollouts.close()
+            weights.close()
+
+    def _reset(self, i: int, seed: int, actor_id: int) -> np.ndarray:
+        t = time.perf_counter()
+        o, _ = self.envs[i].reset(seed=int(np.random.SeedSequence([seed, actor_id, i]).generate_state(1)[0]))
+        self.summary.env_seconds += time.perf_counter() - t
+        o = np.asarray(o, dtype=np.float64).reshape(-1)
+        self.decl.check_obs(o, "reset")
+        return o
+
+    def _collect(self, policy, rng, obs, running, returns, n, limit):
+        """n steps of every env; the rollout message (env-major) and the new observations."""
+        d = self.decl
+        e = self.n_envs
+        o_all = np.empty((e, n + 1, d.obs_dim), dtype=np.float32)
+        act_all = np.empty((e, n, d.action_dim), dtype=np.float32)
+        pay_all = np.empty((e, n, policy.payload_width), dtype=np.float32)
+        delta_all = np.empty((e, n, d.dim), dtype=np.float32)
+        rew_all = np.empty((e, n, d.dim), dtype=np.float32)
+        done_all = np.zeros((e, n), dtype=bool)
+        episodes = [[] for _ in range(e)]
+        timeouts = [[] for _ in range(e)]
+        nxt = np.empty_like(obs)
+        rewards, terminated, truncated = np.zeros(e), np.zeros(e, dtype=bool), np.zeros(e, dtype=bool)
+        infos = [None] * e
+        space = self.envs[0].action_space
+        env_time = 0.0
+        for t in range(n):
+            o_all[:, t] = obs
+            actions, payload = policy.act(o_all[:, t], rng)
+            act_all[:, t], pay_all[:, t] = actions, payload
+            t0 = time.perf_counter()
+            for i, (env, a) in enumerate(zip(self.envs, d.env_actions(actions, space))):
+                o, rewards[i], terminated[i], truncated[i], infos[i] = env.step(a)
+                nxt[i] = np.asarray(o).reshape(-1)
+            env_time += time.perf_counter() - t0
+            d.check_obs(nxt, "a step")
+            delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos)
+            delta_all[:, t], rew_all[:, t] = delta, r
+            running += 1
+            returns += r.astype(np.float32).sum(axis=1)
+            timeout = ~success & (running >= limit)
+            if (terminated & ~success).any():
+                i = int(np.argmax(terminated & ~success))
+                raise EnvError(f"{d.name}: the env ended an episode at step {running[i]} without success; SAVER "
+                               f"episodes end at the goal or at the step limit (declare success_radius, or make "
+                               f"the env terminate only at its goal)")
+            if (truncated & ~success & ~timeout).any():
+                i = int(np.argmax(truncated & ~success & ~timeout))
+                raise EnvError(f"{d.name}: the env truncated its episode at step {running[i]}, before the run's "
+                               f"step limit {limit}; set max_episode_steps = {running[i]} in the learner's config")
+            done = success | timeout
+            done_all[:, t] = done
+            obs[:] = nxt
+            for i in np.flatnonzero(done):
+                episodes[i].append(pb.Episode(length=int(running[i]), success=bool(success[i]),
+                                              ret=float(returns[i])))
+                if timeout[i]:
+                    timeouts[i].append((i * n + t, nxt[i].astype(np.float32).tolist()))
+                self.summary.episodes += 1
+                self.summary.successes += int(success[i])
+                running[i], returns[i] = 0, 0.0
+                obs[i] = self._reset(i, int(rng.integers(1 << 62)), 0)
+        o_all[:, n] = obs
+        self.summary.steps += e * n
+        self.summary.env_seconds += env_time
+        msg = pb.Rollout(
+            n_envs=e, n_steps=n, obs=o_all.ravel().tolist(), actions=act_all.ravel().tolist(),
+            state_delta=delta_all.ravel().tolist(), vector_reward=rew_all.ravel().tolist(),
+            done=done_all.ravel().tolist(), payload=pay_all.ravel().tolist(),
+            episodes=[ep for eps in episodes for ep in eps],
+            timeouts=[k for ts in timeouts for k, _ in ts],
+            timeout_obs=[v for ts in timeouts for _, o in ts for v in o])
+        return msg, obs
+
+    # ---- the reconnect loop ----------------------------------------------------------
+    def run(self) -> Summary:
+        start = time.monotonic()
+        attempt, last_contact = 0, time.monotonic()
+        try:
+            while not self.stop.is_set():
+                before = self.summary.rollouts
+                try:
+                    with self.conn.channel() as channel:
+                        self._session(pb_grpc.LearnerStub(channel))
+                    return self.summary
+                except RunFinished:
+                    return self.summary
+                except grpc.RpcError as e:
+                    err = _status_error(e, "Register")
+                    if isinstance(err, RunFinished):
+                        return self.summary
+                    if isinstance(err, Refused):
+                        raise err from None
+                    why = str(err)
+                except LinkLost as e:
+                    why = str(e)
+                if self.summary.rollouts > before:
+                    attempt, last_contact = 0, time.monotonic()
+                if time.monotonic() - last_contact > self.give_up:
+                    raise LinkLost(f"{self.name}: no learner at {self.conn.url} for {self.give_up:.0f} s ({why})")
+                wait = min(0.1 * 2 ** min(attempt, 6), 5.0) * random.uniform(0.5, 1.0)
+                attempt += 1
+                self.log(f"{self.name}: {why}; reconnecting in {wait:.2f} s")
+                self.stop.wait(wait)
+            return self.summary
+        finally:
+            self.summary.seconds = time.monotonic() - start

@@ -1,0 +1,223 @@
+"""What a user declares of an environment: which observation entries are the
+state-aligned position p (and, optionally, the goal g), the bounds of every
+observation entry and of one step's change of p, and when an episode succeeds.
+
+From it come the vector reward r_j = |p_j - g_j| - |p'_j - g_j| (or the user's own),
+the state change p' - p that SAVER's PCPN predicts, and the env spec the learner checks
+the actor against (saver.proto EnvSpec).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from ._proto import saver_pb2 as pb
+
+# Values this close past a bound still pass (the learner's rounding slack).
+def _slack(b: float) -> float:
+    return abs(b) * 1e-5 + 1e-6
+
+
+class EnvError(ValueError):
+    """An environment does not do what its declaration says."""
+
+
+def _as_slice(s, what: str) -> slice:
+    if isinstance(s, slice):
+        return s
+    if isinstance(s, str) and ":" in s:
+        a, b = s.split(":")
+        return slice(int(a), int(b))
+    if isinstance(s, (tuple, list)) and len(s) == 2:
+        return slice(int(s[0]), int(s[1]))
+    raise EnvError(f"{what}: {s!r} is not a slice of observation entries (e.g. slice(8, 10) or '8:10')")
+
+
+@dataclass
+class EnvDecl:
+    """A custom environment as SAVER sees it.
+
+    name: the env's name in the run (letters, digits, '_', '.', '-'; not a preset's).
+    obs_low, obs_high: every observation entry's range (finite); an observation
+        outside them stops the actor with an error naming the entry.
+    aligned: the observation entries that are the state-aligned position p
+        (slice or "start:stop"); d = their number = the vector reward's length.
+    max_change: the largest |p'_j - p_j| of one step (bounds the vector reward).
+    continuous: continuous action dims (agent outputs in [-1, 1] are scaled to the
+        env's Box); choices: size of a categorical choice (Discrete), 0 for none.
+    goal: the observation entries of the goal g (same length as `aligned`); None when
+        p is already relative to the goal (g = 0), as Reacher's fingertip - target.
+    success_radius: the episode succeeds (and ends) when every |p'_j - g_j| is below
+        it; None: the env's own `terminated` is the success.
+    vector_reward: optional f(obs, next_obs, env_reward, info) -> array of d, used
+        instead of |p - g| - |p' - g| (e.g. MO-Gymnasium's array reward).
+    """
+
+    name: str
+    obs_low: Sequence[float]
+    obs_high: Sequence[float]
+    aligned: slice
+    max_change: float
+    continuous: int
+    choices: int = 0
+    goal: Optional[slice] = None
+    success_radius: Optional[float] = None
+    vector_reward: Optional[Callable] = field(default=None, repr=False)
+
+    def __post_init__(self):
+        self.obs_low = np.asarray(self.obs_low, dtype=np.float64)
+        self.obs_high = np.asarray(self.obs_high, dtype=np.float64)
+        self.aligned = _as_slice(self.aligned, "aligned")
+        if self.goal is not None:
+            self.goal = _as_slice(self.goal, "goal")
+        n = len(self.obs_low)
+        if len(self.obs_high) != n or n == 0:
+            raise EnvError(f"{self.name}: obs_low has {n} entries and obs_high {len(self.obs_high)}")
+        bad = [k for k in range(n) if not (math.isfinite(self.obs_low[k]) and math.isfinite(self.obs_high[k])
+                                           and self.obs_low[k] <= self.obs_high[k])]
+        if bad:
+            k = bad[0]
+            raise EnvError(
+                f"{self.name}: observation entries {bad} have no finite bounds (entry {k}: "
+                f"[{self.obs_low[k]}, {self.obs_high[k]}]); declare the range each can take")
+        a = self.aligned
+        if a.step not in (None, 1) or a.start is None or a.stop is None or not (0 <= a.start < a.stop <= n):
+            raise EnvError(f"{self.name}: aligned entries {a.start}:{a.stop} are not a non-empty range inside the "
+                           f"{n} observation entries")
+        if self.goal is not None:
+            g = self.goal
+            if g.start is None or g.stop is None or g.stop - g.start != self.dim or not (0 <= g.start and g.stop <= n):
+                raise EnvError(f"{self.name}: goal entries {g.start}:{g.stop} must be {self.dim} entries inside the "
+                               f"observation, as many as the aligned ones")
+        if not (math.isfinite(self.max_change) and self.max_change > 0):
+            raise EnvError(f"{self.name}: max_change {self.max_change} must be finite and > 0")
+        if self.continuous < 0 or self.choices < 0 or self.continuous + self.choices == 0:
+            raise EnvError(f"{self.name}: the env needs at least one action dim")
+
+    @property
+    def obs_dim(self) -> int:
+        return len(self.obs_low)
+
+    @property
+    def dim(self) -> int:
+        return self.aligned.stop - self.aligned.start
+
+    @property
+    def action_dim(self) -> int:
+        return self.continuous + self.choices
+
+    @classmethod
+    def for_env(cls, env, name: str, aligned, max_change: float, obs_low=None, obs_high=None, **kw) -> "EnvDecl":
+        """A declaration with the action layout and (where finite) the observation bounds
+        read from a Gymnasium env's spaces; `obs_low`/`obs_high` override them (needed
+        wherever the space is unbounded)."""
+        import gymnasium as gym
+
+        space = env.action_space
+        if isinstance(space, gym.spaces.Box):
+            continuous, choices = int(np.prod(space.shape)), 0
+        elif isinstance(space, gym.spaces.Discrete):
+            continuous, choices = 0, int(space.n)
+        else:
+            raise EnvError(f"{name}: action space {space} is neither a Box nor a Discrete")
+        ospace = env.observation_space
+        if not isinstance(ospace, gym.spaces.Box) or len(ospace.shape) != 1:
+            raise EnvError(f"{name}: the observation space {ospace} is not a flat Box")
+        low = np.asarray(ospace.low if obs_low is None else obs_low, dtype=np.float64)
+        high = np.asarray(ospace.high if obs_high is None else obs_high, dtype=np.float64)
+        return cls(name=name, obs_low=low, obs_high=high, aligned=aligned, max_change=max_change,
+                   continuous=continuous, choices=choices, **kw)
+
+    # ---- the wire form -------------------------------------------------------------
+    def spec(self) -> "pb.EnvSpec":
+        a = self.aligned
+        return pb.EnvSpec(
+            kind=self.name, dim=self.dim,
+            layout=pb.EnvLayout(obs_dim=self.obs_dim, continuous=self.continuous, choices=self.choices,
+                                aligned_start=a.start, aligned_dim=self.dim),
+            bounds=pb.EnvBounds(obs_low=self.obs_low.astype(np.float32).tolist(),
+                                obs_high=self.obs_high.astype(np.float32).tolist(),
+                                max_change=float(np.float32(self.max_change))))
+
+    def check_run(self, run: "pb.EnvSpec") -> None:
+        """Refuses a learner whose env is not this one, saying what differs."""
+        mine = self.spec()
+        if run.kind != mine.kind:
+            raise EnvError(f"the learner trains env {run.kind!r}, this actor brings {mine.kind!r}")
+        if run.layout != mine.layout:
+            raise EnvError(f"env {mine.kind}: the learner's layout {_text(run.layout)} is not this actor's "
+                           f"{_text(mine.layout)}")
+        if run.bounds != mine.bounds:
+            raise EnvError(f"env {mine.kind}: the learner's bounds are not this actor's; copy the actor's "
+                           f"declaration (python -m saver_actor describe ...) into the learner's config")
+
+    def toml(self) -> str:
+        """The learner's `[env]` section for this env (saver learner --config FILE)."""
+        f = lambda v: np.format_float_positional(np.float32(v), unique=True, trim="0")  # noqa: E731
+        low = ", ".join(f(v) for v in self.obs_low)
+        high = ", ".join(f(v) for v in self.obs_high)
+        return (f'[env]\nname = "{self.name}"\n\n[env.layout]\nobs_dim = {self.obs_dim}\n'
+                f"continuous = {self.continuous}\nchoices = {self.choices}\n"
+                f"aligned_start = {self.aligned.start}\naligned_dim = {self.dim}\n\n"
+                f"[env.bounds]\nobs_low = [{low}]\nobs_high = [{high}]\nmax_change = {f(self.max_change)}\n")
+
+    # ---- steps (batched over envs: arrays [E, ...]) -----------------------------------
+    def check_obs(self, obs: np.ndarray, where: str) -> None:
+        """Refuses observations [E, obs_dim] (or one [obs_dim]) outside the declared bounds."""
+        obs = np.asarray(obs)
+        if obs.shape[-1:] != (self.obs_dim,):
+            raise EnvError(f"{self.name}: {where}: an observation of shape {obs.shape[-1:]}, declared ({self.obs_dim},)")
+        lo, hi = self.obs_low, self.obs_high
+        out = ~((obs >= lo - np.abs(lo) * 1e-5 - 1e-6) & (obs <= hi + np.abs(hi) * 1e-5 + 1e-6))
+        if out.any():
+            row = obs.reshape(-1, self.obs_dim)[int(np.argmax(out.reshape(-1, self.obs_dim).any(axis=1)))]
+            k = int(np.argmax(out.reshape(-1, self.obs_dim).any(axis=0)))
+            raise EnvError(
+                f"{self.name}: {where}: observation entry {k} = {float(row[k])!r} is outside its declared bounds "
+                f"[{lo[k]}, {hi[k]}]; widen obs_low/obs_high (the learner's config too)")
+
+    def env_actions(self, actions: np.ndarray, space) -> list:
+        """The env's action for each of the agent's [E, action_dim]: continuous values
+        clipped to [-1, 1] and scaled to the Box; a choice's one-hot as its index."""
+        if self.choices:
+            return [int(i) for i in np.argmax(actions[:, self.continuous:], axis=1)]
+        a = np.clip(actions[:, : self.continuous], -1.0, 1.0)
+        low, high = space.low.reshape(-1), space.high.reshape(-1)
+        if not (np.all(low == -1.0) and np.all(high == 1.0)):
+            a = low + (a + 1.0) * 0.5 * (high - low)
+        a = a.astype(space.dtype)
+        return [row.reshape(space.shape) for row in a]
+
+    def outcome(self, obs, next_obs, rewards, terminated, infos):
+        """(state_delta, vector_reward, success) of one step of every env, [E, d] and
+        [E], checked against max_change."""
+        a = self.aligned
+        p, q = obs[:, a], next_obs[:, a]
+        g = 0.0 if self.goal is None else obs[:, self.goal]
+        delta = q - p
+        if self.vector_reward is not None:
+            r = np.stack([np.asarray(self.vector_reward(o, n, rw, info), dtype=np.float64).reshape(-1)
+                          for o, n, rw, info in zip(obs, next_obs, rewards, infos)])
+            if r.shape[1] != self.dim:
+                raise EnvError(f"{self.name}: vector_reward gave {r.shape[1]} values for d = {self.dim}")
+        else:
+            r = np.abs(p - g) - np.abs(q - g)
+        lim = self.max_change + _slack(self.max_change)
+        for what, v in (("moved by", delta), ("has a vector reward of", r)):
+            if not np.all(np.abs(v) <= lim):
+                e, j = np.unravel_index(int(np.argmax(np.abs(v))), v.shape)
+                raise EnvError(f"{self.name}: aligned entry {a.start + j} {what} {float(v[e, j])!r} in one step, "
+                               f"beyond the declared max_change {self.max_change}")
+        if self.success_radius is not None:
+            success = np.max(np.abs(q - g), axis=1) < self.success_radius
+        else:
+            success = np.asarray(terminated, dtype=bool)
+        return delta, r, success
+
+
+def _text(layout) -> str:
+    return (f"(obs_dim {layout.obs_dim}, continuous {layout.continuous}, choices {layout.choices}, "
+            f"aligned {layout.aligned_start}:{layout.aligned_start + layout.aligned_dim})")

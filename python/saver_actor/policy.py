@@ -1,0 +1,130 @@
+"""The behaviour policies of a SAVER run in numpy, over the learner's published
+weights (safetensors): one forward pass for a batch of observations (one per env).
+They follow the `architecture` text each weights file carries and are held to the
+Rust actors' policies by tests/python/test_saver_actor.py (through `saver act`).
+
+gaussian-mlp (A2C, SAVER): mu = MLP(obs) (256-128-64, ReLU), bounded by
+mu_bound * tanh when mu_bound is finite; log_std = clamp(agent.log_std); continuous
+action = mu + exp(log_std) * N(0, 1); a choice ~ softmax(logits) as a one-hot.
+Payload per step: mu then log_std.
+
+quantile-mlp (QRRL): tau_j ~ U(0, 1) per action dim, action_j = Q_j(tau_j, obs) +
+spread * (2 tau_j - 1) with the PCPN-shaped implicit quantile network agent.q.*.
+Payload per step: tau.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+TRUNK = 3  # hidden layers of the gaussian MLP
+EMBED = 128  # cosine embedding size of the quantile network
+
+
+class Gaussian:
+    family = "gaussian-mlp"
+
+    def __init__(self, tensors: dict, layout, params: dict):
+        self.c, self.ch = layout.continuous, layout.choices
+        self.layers = []
+        for i in range(TRUNK):
+            self.layers.append((tensors[f"agent.l{i}.w"].astype(np.float32), tensors[f"agent.l{i}.b"].astype(np.float32)))
+        self.layers.append((tensors["agent.mu.w"].astype(np.float32), tensors["agent.mu.b"].astype(np.float32)))
+        if self.layers[0][0].shape[0] != layout.obs_dim or self.layers[-1][0].shape[1] != self.c + self.ch:
+            raise ValueError("the weights do not fit the env layout")
+        bound = params.get("mu_bound", math.inf)
+        self.mu_bound = None if not math.isfinite(bound) else np.float32(bound)
+        lo, hi = params.get("log_std_min", -math.inf), params.get("log_std_max", math.inf)
+        log_std = tensors["agent.log_std"].astype(np.float32)
+        self.log_std = np.clip(log_std, np.float32(lo), np.float32(hi)) if (math.isfinite(lo) or math.isfinite(hi)) else log_std
+        self.payload_width = 2 * self.c + self.ch
+
+    def mean(self, obs: np.ndarray) -> np.ndarray:
+        h = np.asarray(obs, dtype=np.float32)
+        for i, (w, b) in enumerate(self.layers):
+            h = h @ w + b
+            if i < TRUNK:
+                np.maximum(h, 0.0, out=h)
+        if self.mu_bound is not None:
+            h = self.mu_bound * np.tanh(h)
+        return h
+
+    def act(self, obs: np.ndarray, rng: np.random.Generator):
+        """Actions [E, c + ch] and payloads [E, mu_dim + c] for observations [E, obs_dim]."""
+        mu = self.mean(obs)
+        e = mu.shape[0]
+        c = self.c
+        sigma = np.exp(self.log_std)
+        actions = np.empty((e, c + self.ch), dtype=np.float32)
+        actions[:, :c] = mu[:, :c] + sigma * rng.standard_normal((e, c), dtype=np.float32)
+        if self.ch:
+            logits = mu[:, c:]
+            p = np.exp(logits - logits.max(axis=1, keepdims=True))
+            p /= p.sum(axis=1, keepdims=True)
+            u = rng.random((e, 1))
+            pick = np.minimum((np.cumsum(p, axis=1) < u).sum(axis=1), self.ch - 1)
+            actions[:, c:] = 0.0
+            actions[np.arange(e), c + pick] = 1.0
+        payload = np.concatenate([mu, np.broadcast_to(self.log_std, (e, c))], axis=1)
+        return actions, payload
+
+    def deterministic(self, obs: np.ndarray) -> np.ndarray:
+        mu = self.mean(obs)
+        if self.ch:
+            pick = np.argmax(mu[:, self.c:], axis=1)
+            mu[:, self.c:] = 0.0
+            mu[np.arange(mu.shape[0]), self.c + pick] = 1.0
+        return mu
+
+
+def cosine_embedding(tau: np.ndarray) -> np.ndarray:
+    """cos(pi * i * tau) for i = 1..128, [..., 128] (computed in f64, as the Rust side)."""
+    i = np.arange(1, EMBED + 1, dtype=np.float64)
+    return np.cos(np.pi * i * np.asarray(tau, dtype=np.float64)[..., None]).astype(np.float32)
+
+
+class Quantile:
+    family = "quantile-mlp"
+
+    def __init__(self, tensors: dict, layout, params: dict):
+        if layout.choices:
+            raise ValueError("the quantile policy acts in continuous dims only")
+        self.c = layout.continuous
+        t = {k[len("agent.q."):]: v.astype(np.float32) for k, v in tensors.items() if k.startswith("agent.q.")}
+        self.w0, self.b0, self.w1, self.b1 = t["l0.w"], t["l0.b"], t["l1.w"], t["l1.b"]
+        self.hw0, self.hb0, self.hw1, self.hb1 = t["head.w0"], t["head.b0"], t["head.w1"], t["head.b1"]
+        if self.w0.shape[0] != layout.obs_dim or self.hw0.shape[0] != self.c:
+            raise ValueError("the weights do not fit the env layout")
+        self.spread = np.float32(params.get("spread", 0.0))
+        self.payload_width = self.c
+
+    def quantiles(self, obs: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Q_j(tau_j, obs) + spread (2 tau_j - 1): [E, c] for obs [E, obs_dim], tau [E, c]."""
+        obs = np.asarray(obs, dtype=np.float32)
+        tau = np.asarray(tau, dtype=np.float32)
+        h = np.maximum(obs @ self.w0 + self.b0, 0.0)
+        z = np.maximum(h @ self.w1 + self.b1, 0.0).reshape(obs.shape[0], self.c, EMBED)
+        e = z * cosine_embedding(tau)  # [E, c, 128]
+        u = np.maximum(np.einsum("ecm,cmh->ech", e, self.hw0) + self.hb0[:, 0, :], 0.0)  # [E, c, 64]
+        q = np.einsum("ech,ch->ec", u, self.hw1[:, :, 0]) + self.hb1[:, 0, 0]
+        return (q + self.spread * (2.0 * tau - 1.0)).astype(np.float32)
+
+    def act(self, obs: np.ndarray, rng: np.random.Generator):
+        tau = rng.random((np.asarray(obs).shape[0], self.c), dtype=np.float32)
+        return self.quantiles(obs, tau), tau
+
+    def deterministic(self, obs: np.ndarray) -> np.ndarray:
+        return self.quantiles(obs, np.full((np.asarray(obs).shape[0], self.c), 0.5, dtype=np.float32))
+
+
+FAMILIES = {Gaussian.family: Gaussian, Quantile.family: Quantile}
+
+
+def policy_for(family: str, tensors: dict, layout, params: dict):
+    """The policy of `family` over `tensors` (saver.proto PolicySpec names it)."""
+    try:
+        cls = FAMILIES[family]
+    except KeyError:
+        raise ValueError(f"policy family {family!r} is not known to this saver-actor ({', '.join(FAMILIES)})") from None
+    return cls(tensors, layout, params)

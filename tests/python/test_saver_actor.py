@@ -1,0 +1,292 @@
+#!/usr/bin/env python3
+"""The Python actor package (python/, `pip install ./python`) against real `saver`
+processes:
+
+1. its generated stubs are those of proto/saver.proto;
+2. its numpy policies act as the Rust ones (`saver act` on the same weights file) for
+   A2C's and SAVER's gaussian-mlp (bounded head, and a categorical choice) and
+   QRRL's quantile-mlp;
+3. an actor whose env differs from the run's, an observation outside the declared
+   bounds and a bad declaration get clear errors, and the learner goes on serving;
+4. MuJoCo Reacher-v5 end to end: two Python actor processes train A2C, and SAVER with
+   a pcpn-trainer that pretrains the PCPN from the samples the actors stream; each
+   trained policy ends its episodes nearer the target than the untrained one.
+
+    python3 tests/python/test_saver_actor.py target/release/saver
+"""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+import grpc
+import gymnasium as gym
+import numpy as np
+from safetensors import safe_open
+from safetensors.numpy import load
+
+from saver_actor import Actor, Connection, EnvDecl, EnvError, Refused, policy_for
+from saver_actor._proto import saver_pb2 as pb
+from saver_actor._proto import saver_pb2_grpc as pb_grpc
+from saver_actor.examples import reacher
+
+SAVER = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else "target/release/saver")
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+TMP = tempfile.mkdtemp(prefix="saver-py-")
+
+
+def port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """A `saver` server process on a free port, stopped with SIGTERM."""
+
+    def __init__(self, name, args):
+        self.port = port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.log = os.path.join(TMP, f"{name}.log")
+        self.proc = subprocess.Popen([SAVER, *args, "--listen", f"127.0.0.1:{self.port}"],
+                                     stdout=open(self.log, "w"), stderr=subprocess.STDOUT)
+
+    def wait_ready(self, timeout=600):
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            if self.proc.poll() is not None:
+                raise AssertionError(f"server exited {self.proc.returncode}: {open(self.log).read()[-2000:]}")
+            try:
+                with socket.create_connection(("127.0.0.1", self.port), timeout=0.5):
+                    return self
+            except OSError:
+                time.sleep(0.2)
+        raise AssertionError(f"no server on {self.port} after {timeout} s")
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            self.proc.wait(60)
+
+
+def learner(name, *args):
+    return Server(name, ["learner", "--out", os.path.join(TMP, name), "--pcpn-dir", os.path.join(TMP, "pcpns"), *args])
+
+
+def write_reacher_config(path):
+    _, decl = reacher()
+    with open(path, "w") as f:
+        f.write("max_episode_steps = 50\n" + decl.toml())
+    return path
+
+
+def test_stubs_are_current():
+    from grpc_tools import protoc
+
+    out = os.path.join(TMP, "gen")
+    os.makedirs(out)
+    assert protoc.main(["protoc", f"-I{ROOT}/proto", f"--python_out={out}", "saver.proto"]) == 0
+    committed = open(os.path.join(ROOT, "python/saver_actor/_proto/saver_pb2.py")).read()
+    assert open(os.path.join(out, "saver_pb2.py")).read() == committed, \
+        "python/saver_actor/_proto is older than proto/saver.proto: run python/generate_proto.sh"
+
+
+def registered_weights(url):
+    """The run's settings (Register) and its current weights (GetWeights), saved as a file."""
+    with grpc.insecure_channel(url[len("http://"):]) as ch:
+        stub = pb_grpc.LearnerStub(ch)
+        reply = stub.Register(pb.RegisterRequest(name="parity", session=1, n_envs=1), timeout=30)
+        w = stub.GetWeights(pb.WeightsRequest(min_version=0), timeout=30)
+    path = os.path.join(TMP, f"weights-{reply.settings.policy.family}-{time.time_ns()}.safetensors")
+    with open(path, "wb") as f:
+        f.write(w.safetensors)
+    return reply.settings, load(w.safetensors), path
+
+
+def test_numpy_policies_act_as_the_rust_ones():
+    cases = [
+        ("a2c-angle", ["--env", "angle", "--dim", "4"]),
+        # SAVER's head: mu = tanh(raw), log sigma clamped.
+        ("bounded-angle", ["--env", "angle", "--dim", "4", "--mu-bound", "1", "--log-std-min", "-4.6",
+                           "--log-std-max", "0"]),
+        ("a2c-select", ["--env", "select", "--dim", "3"]),
+        ("qrrl-point", ["--algo", "qrrl", "--env", "point", "--dim", "3"]),
+    ]
+    rng = np.random.default_rng(0)
+    for name, args in cases:
+        srv = learner(name, *args, "--steps", "1000").wait_ready()
+        try:
+            settings, tensors, path = registered_weights(srv.url)
+        finally:
+            srv.stop()
+        layout = settings.env.layout
+        obs = rng.uniform(np.array(settings.env.bounds.obs_low), np.array(settings.env.bounds.obs_high),
+                          (64, layout.obs_dim)).astype(np.float32)
+        lines = "\n".join(json.dumps(o.tolist()) for o in obs) + "\n"
+        out = subprocess.run([SAVER, "act", path], input=lines, capture_output=True, text=True, check=True).stdout
+        rust = [json.loads(line) for line in out.splitlines()]
+        assert len(rust) == 64, out[:500]
+        policy = policy_for(settings.policy.family, tensors, layout, dict(settings.policy.params))
+        mean = policy.deterministic(obs)
+        want_mean = np.array([r["mean_action"] for r in rust])
+        assert np.allclose(mean, want_mean, rtol=1e-4, atol=1e-5), (name, np.abs(mean - want_mean).max())
+        payload = np.array([r["payload"] for r in rust], dtype=np.float32)
+        if settings.policy.family == "gaussian-mlp":
+            _, mine = policy.act(obs, np.random.default_rng(1))
+            # The payload (mu, log sigma) does not depend on the draw.
+            assert np.allclose(mine, payload, rtol=1e-4, atol=1e-5), (name, np.abs(mine - payload).max())
+        else:
+            # The Rust draw of tau, through the numpy network: the Rust action.
+            got = policy.quantiles(obs, payload)
+            want = np.array([r["action"] for r in rust])
+            assert np.allclose(got, want, rtol=1e-4, atol=1e-5), (name, np.abs(got - want).max())
+        print(f"  {name}: {settings.policy.family} agrees on 64 observations "
+              f"(largest difference {np.abs(mean - want_mean).max():.2e})")
+
+
+class OutOfBounds(gym.Wrapper):
+    """Reacher whose velocities read 1,000 after 5 steps: outside the declared +-200."""
+
+    def step(self, a):
+        o, r, term, trunc, info = self.env.step(a)
+        self.n = getattr(self, "n", 0) + 1
+        if self.n >= 5:
+            o = o.copy()
+            o[6] = 1000.0
+        return o, r, term, trunc, info
+
+
+def test_bad_envs_get_clear_errors_and_the_learner_goes_on():
+    make_env, decl = reacher()
+    cfg = write_reacher_config(os.path.join(TMP, "reacher.toml"))
+    srv = learner("refusals", "--config", cfg, "--steps", "100000", "--actors", "1").wait_ready()
+    try:
+        # Another layout: refused at registration, naming the difference.
+        other = EnvDecl(name="reacher", obs_low=decl.obs_low, obs_high=decl.obs_high, aligned=slice(6, 8),
+                        max_change=0.5, continuous=2, success_radius=0.02)
+        try:
+            Actor(make_env, other, Connection(srv.url), give_up=5).run()
+            raise AssertionError("an actor of another layout was accepted")
+        except Refused as e:
+            assert "INVALID_ARGUMENT" in str(e) and "layout" in str(e), e
+        # Other bounds: refused, naming the entry.
+        low = decl.obs_low.copy()
+        low[6] = -100.0
+        other = EnvDecl(name="reacher", obs_low=low, obs_high=decl.obs_high, aligned=slice(8, 10), max_change=0.5,
+                        continuous=2, success_radius=0.02)
+        try:
+            Actor(make_env, other, Connection(srv.url), give_up=5).run()
+            raise AssertionError("an actor with other bounds was accepted")
+        except Refused as e:
+            assert "observation entry 6" in str(e), e
+        # An observation outside the declared bounds stops the actor before it is sent.
+        try:
+            Actor(lambda: OutOfBounds(make_env()), decl, Connection(srv.url), give_up=5).run()
+            raise AssertionError("an out-of-bounds observation went through")
+        except EnvError as e:
+            assert "observation entry 6 = 1000.0 is outside its declared bounds [-200.0, 200.0]" in str(e), e
+        # Declarations that cannot be right.
+        for kw, words in [(dict(aligned=slice(9, 12)), "not a non-empty range inside the 10"),
+                          (dict(aligned=None), "is not a slice"),
+                          (dict(obs_high=[np.inf] * 10), "no finite bounds")]:
+            args = dict(name="reacher", obs_low=decl.obs_low, obs_high=decl.obs_high, aligned=slice(8, 10),
+                        max_change=0.5, continuous=2)
+            args.update(kw)
+            try:
+                EnvDecl(**args)
+                raise AssertionError(f"{kw} was accepted")
+            except EnvError as e:
+                assert words in str(e), (kw, e)
+        # The learner still serves: a good actor registers.
+        with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
+            st = pb_grpc.LearnerStub(ch).Status(pb.StatusRequest(), timeout=10)
+            assert st.env == "reacher-d2" and not st.finished, st
+        print("  wrong layout, wrong bounds, out-of-bounds observation, bad declarations: clear errors")
+    finally:
+        srv.stop()
+
+
+def final_distance(tensors, settings, episodes=50, seed=0):
+    """Mean |fingertip - target| (L1) at the end of deterministic Reacher episodes."""
+    make_env, decl = reacher()
+    env = make_env()
+    policy = policy_for(settings.policy.family, tensors, settings.env.layout, dict(settings.policy.params))
+    dist = []
+    for ep in range(episodes):
+        o, _ = env.reset(seed=seed + ep)
+        for _ in range(50):
+            a = policy.deterministic(np.asarray(o, dtype=np.float32)[None])[0]
+            o, _, term, trunc, _ = env.step(np.clip(a, -1, 1))
+            if np.max(np.abs(o[8:10])) < decl.success_radius:
+                break
+        dist.append(float(np.abs(o[8:10]).sum()))
+    return float(np.mean(dist))
+
+
+def reacher_run(algo, steps, extra=(), pcpn=None):
+    cfg = write_reacher_config(os.path.join(TMP, "reacher.toml"))
+    args = ["--config", cfg, "--algo", algo, "--steps", str(steps), "--actors", "2", *extra]
+    if pcpn is not None:
+        args += ["--pcpn", pcpn.url]
+    srv = learner(f"reacher-{algo}", *args)
+    actors = []
+    for i in range(2):
+        cmd = [sys.executable, "-m", "saver_actor", "act", "--factory", "saver_actor.examples:reacher",
+               "--learner", srv.url, "--envs", "4", "--seed", str(i)]
+        if pcpn is not None:
+            cmd += ["--pcpn-samples", pcpn.url]
+        actors.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
+    try:
+        srv.wait_ready()
+        settings, untrained, _ = registered_weights(srv.url)
+        start = time.time()
+        for a in actors:
+            out, _ = a.communicate(timeout=900)
+            assert a.returncode == 0, out[-3000:]
+            assert "run finished" in out, out[-2000:]
+        wall = time.time() - start
+        with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
+            stub = pb_grpc.LearnerStub(ch)
+            status = stub.Status(pb.StatusRequest(), timeout=30)
+            trained = load(stub.GetWeights(pb.WeightsRequest(min_version=0), timeout=30).safetensors)
+        assert status.finished and status.steps >= steps, status
+        before, after = final_distance(untrained, settings), final_distance(trained, settings)
+        print(f"  {algo}: {status.steps} steps in {wall:.0f} s; final |fingertip - target| {before:.3f} untrained, "
+              f"{after:.3f} trained")
+        return before, after
+    finally:
+        srv.stop()
+        for a in actors:
+            if a.poll() is None:
+                a.kill()
+
+
+def test_reacher_trains_with_python_actors():
+    before, after = reacher_run("a2c", 150_000)
+    assert after < 0.8 * before, (before, after)
+    store = Server("pcpn-trainer", ["pcpn-trainer", "--store", os.path.join(TMP, "store")]).wait_ready()
+    try:
+        before, after = reacher_run("saver", 150_000, ["--pretrain-batches", "1000"], pcpn=store)
+        assert after < 0.8 * before, (before, after)
+    finally:
+        store.stop()
+    pcpns = [f for f in os.listdir(os.path.join(TMP, "store")) if f.startswith("pcpn-reacher-d2-")]
+    assert len(pcpns) == 1, pcpns
+    with safe_open(os.path.join(TMP, "store", pcpns[0]), framework="numpy") as f:
+        meta = f.metadata()
+    assert json.loads(meta["pretrain"])["samples"] == "walk", meta["pretrain"]
+    assert "streamed by actors" in meta["samples"], meta["samples"]
+    assert float(meta["held_out_loss"]) < float(meta["initial_held_out_loss"]), meta
+
+
+if __name__ == "__main__":
+    for name, fn in list(globals().items()):
+        if name.startswith("test_") and (len(sys.argv) < 3 or sys.argv[2] in name):
+            t = time.time()
+            print(f"{name} ...", flush=True)
+            fn()
+            print(f"{name} ok ({time.time() - t:.0f} s)", flush=True)
