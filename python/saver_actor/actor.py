@@ -71,6 +71,7 @@ class Summary:
     registrations: int = 0
     seconds: float = 0.0
     env_seconds: float = 0.0  # time inside env.step / env.reset
+    wait_seconds: float = 0.0  # time waiting for the learner's next weights
 
 
 def _status_error(e: grpc.RpcError, what: str) -> Exception:
@@ -242,7 +243,9 @@ class Actor:
             want, seq, interval, last, policy = 0, 0, 0.01, None, None
             while not self.stop.is_set():
                 timeout = None if s.mode == "sync" or seq == 0 else min(max(2 * interval, 0.002), 0.5)
+                t0 = time.monotonic()
                 version, tensors = weights.wait(want, timeout)
+                self.summary.wait_seconds += time.monotonic() - t0
                 now = time.monotonic()
                 if last is not None and version > last[0]:
                     interval = 0.8 * interval + 0.2 * (now - last[1]) / (version - last[0])
@@ -260,9 +263,14 @@ class Actor:
             rollouts.close()
             weights.close()
 
-    def _reset(self, i: int, seed: int, actor_id: int) -> np.ndarray:
+    def _reset(self, i: int, seed: Optional[int] = None, actor_id: int = 0) -> np.ndarray:
+        """Resets env i: seeded from (run seed, actor id, i) at a registration, from its
+        own stream after that (Gymnasium's way: seed once)."""
         t = time.perf_counter()
-        o, _ = self.envs[i].reset(seed=int(np.random.SeedSequence([seed, actor_id, i]).generate_state(1)[0]))
+        if seed is None:
+            o, _ = self.envs[i].reset()
+        else:
+            o, _ = self.envs[i].reset(seed=int(np.random.SeedSequence([seed, actor_id, i]).generate_state(1)[0]))
         self.summary.env_seconds += time.perf_counter() - t
         o = np.asarray(o, dtype=np.float64).reshape(-1)
         self.decl.check_obs(o, "reset")
@@ -294,8 +302,8 @@ class Actor:
                 o, rewards[i], terminated[i], truncated[i], infos[i] = env.step(a)
                 nxt[i] = np.asarray(o).reshape(-1)
             env_time += time.perf_counter() - t0
-            d.check_obs(nxt, "a step")
-            delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos)
+            # Bounds are checked for the whole rollout below (before anything is sent).
+            delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False)
             delta_all[:, t], rew_all[:, t] = delta, r
             running += 1
             returns += r.astype(np.float32).sum(axis=1)
@@ -316,12 +324,15 @@ class Actor:
                 episodes[i].append(pb.Episode(length=int(running[i]), success=bool(success[i]),
                                               ret=float(returns[i])))
                 if timeout[i]:
+                    d.check_obs(nxt[i], f"step {running[i]} of an episode")
                     timeouts[i].append((i * n + t, nxt[i].astype(np.float32).tolist()))
                 self.summary.episodes += 1
                 self.summary.successes += int(success[i])
                 running[i], returns[i] = 0, 0.0
-                obs[i] = self._reset(i, int(rng.integers(1 << 62)), 0)
+                obs[i] = self._reset(i)
         o_all[:, n] = obs
+        d.check_obs(o_all, "a step")
+        d.check_steps(delta_all, rew_all, "a step")
         self.summary.steps += e * n
         self.summary.env_seconds += env_time
         msg = pb.Rollout(

@@ -191,9 +191,10 @@ class EnvDecl:
         a = a.astype(space.dtype)
         return [row.reshape(space.shape) for row in a]
 
-    def outcome(self, obs, next_obs, rewards, terminated, infos):
+    def outcome(self, obs, next_obs, rewards, terminated, infos, check=True):
         """(state_delta, vector_reward, success) of one step of every env, [E, d] and
-        [E], checked against max_change."""
+        [E]; checked against max_change unless `check` is false (the actor checks a
+        whole rollout at once: check_steps)."""
         a = self.aligned
         p, q = obs[:, a], next_obs[:, a]
         g = 0.0 if self.goal is None else obs[:, self.goal]
@@ -205,17 +206,24 @@ class EnvDecl:
                 raise EnvError(f"{self.name}: vector_reward gave {r.shape[1]} values for d = {self.dim}")
         else:
             r = np.abs(p - g) - np.abs(q - g)
-        lim = self.max_change + _slack(self.max_change)
-        for what, v in (("moved by", delta), ("has a vector reward of", r)):
-            if not np.all(np.abs(v) <= lim):
-                e, j = np.unravel_index(int(np.argmax(np.abs(v))), v.shape)
-                raise EnvError(f"{self.name}: aligned entry {a.start + j} {what} {float(v[e, j])!r} in one step, "
-                               f"beyond the declared max_change {self.max_change}")
+        if check:
+            self.check_steps(delta, r, "a step")
         if self.success_radius is not None:
             success = np.max(np.abs(q - g), axis=1) < self.success_radius
         else:
             success = np.asarray(terminated, dtype=bool)
         return delta, r, success
+
+    def check_steps(self, delta: np.ndarray, r: np.ndarray, where: str) -> None:
+        """Refuses state changes or vector rewards (any shape [..., d]) beyond max_change."""
+        lim = self.max_change + _slack(self.max_change)
+        for what, v in (("moved by", delta), ("has a vector reward of", r)):
+            if not np.all(np.abs(v) <= lim):
+                flat = np.abs(v).reshape(-1, self.dim)
+                k, j = np.unravel_index(int(np.argmax(flat)), flat.shape)
+                raise EnvError(f"{self.name}: {where}: aligned entry {self.aligned.start + j} {what} "
+                               f"{float(v.reshape(-1, self.dim)[k, j])!r} in one step, beyond the declared "
+                               f"max_change {self.max_change}")
 
 
 def _text(layout) -> str:

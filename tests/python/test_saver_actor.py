@@ -48,8 +48,8 @@ def port():
 class Server:
     """A `saver` server process on a free port, stopped with SIGTERM."""
 
-    def __init__(self, name, args):
-        self.port = port()
+    def __init__(self, name, args, at=None):
+        self.port = at or port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = os.path.join(TMP, f"{name}.log")
         self.proc = subprocess.Popen([SAVER, *args, "--listen", f"127.0.0.1:{self.port}"],
@@ -73,8 +73,9 @@ class Server:
             self.proc.wait(60)
 
 
-def learner(name, *args):
-    return Server(name, ["learner", "--out", os.path.join(TMP, name), "--pcpn-dir", os.path.join(TMP, "pcpns"), *args])
+def learner(name, *args, at=None):
+    return Server(name, ["learner", "--out", os.path.join(TMP, name), "--pcpn-dir", os.path.join(TMP, "pcpns"), *args],
+                  at=at)
 
 
 def write_reacher_config(path):
@@ -149,7 +150,7 @@ def test_numpy_policies_act_as_the_rust_ones():
 
 
 class OutOfBounds(gym.Wrapper):
-    """Reacher whose velocities read 1,000 after 5 steps: outside the declared +-200."""
+    """Reacher whose first joint velocity reads 1,000 after 5 steps: outside the declared +-20."""
 
     def step(self, a):
         o, r, term, trunc, info = self.env.step(a)
@@ -188,7 +189,7 @@ def test_bad_envs_get_clear_errors_and_the_learner_goes_on():
             Actor(lambda: OutOfBounds(make_env()), decl, Connection(srv.url), give_up=5).run()
             raise AssertionError("an out-of-bounds observation went through")
         except EnvError as e:
-            assert "observation entry 6 = 1000.0 is outside its declared bounds [-200.0, 200.0]" in str(e), e
+            assert "observation entry 6 = 1000.0 is outside its declared bounds [-20.0, 20.0]" in str(e), e
         # Declarations that cannot be right.
         for kw, words in [(dict(aligned=slice(9, 12)), "not a non-empty range inside the 10"),
                           (dict(aligned=None), "is not a slice"),
@@ -206,6 +207,101 @@ def test_bad_envs_get_clear_errors_and_the_learner_goes_on():
             st = pb_grpc.LearnerStub(ch).Status(pb.StatusRequest(), timeout=10)
             assert st.env == "reacher-d2" and not st.finished, st
         print("  wrong layout, wrong bounds, out-of-bounds observation, bad declarations: clear errors")
+    finally:
+        srv.stop()
+
+
+def test_token_and_tls_as_for_the_rust_actor():
+    """A learner that wants a token and serves TLS: a Python actor with the wrong token
+    is refused, one with the token and the CA trains the run to its end."""
+    d = os.path.join(TMP, "tls")
+    os.makedirs(d)
+    key, cert, token = (os.path.join(d, f) for f in ("key.pem", "cert.pem", "token"))
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+                    "-keyout", key, "-out", cert, "-subj", "/CN=localhost", "-days", "1",
+                    "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1"], check=True, capture_output=True)
+    with open(token, "w") as f:
+        f.write("s3cret-token-for-the-test")
+    os.chmod(token, 0o600)
+    cfg = write_reacher_config(os.path.join(TMP, "reacher.toml"))
+    srv = learner("tls", "--config", cfg, "--steps", "3200", "--actors", "1", "--token-file", token,
+                  "--tls-cert", cert, "--tls-key", key).wait_ready()
+    url = srv.url.replace("http://", "https://")
+    make_env, decl = reacher()
+    ca = open(cert, "rb").read()
+    try:
+        try:
+            Actor(make_env, decl, Connection(url, token="wrong", ca=ca), give_up=5).run()
+            raise AssertionError("a wrong token was accepted")
+        except Refused as e:
+            assert "UNAUTHENTICATED" in str(e), e
+        s = Actor(make_env, decl, Connection(url, token="s3cret-token-for-the-test", ca=ca), n_envs=2,
+                  give_up=30).run()
+        assert s.steps >= 3200 and s.rollouts >= 3200 // 16, s
+        print(f"  TLS with a token: {s.rollouts} rollouts, {s.steps} steps; a wrong token refused")
+    finally:
+        srv.stop()
+
+
+def test_an_actor_comes_back_after_the_learner_restarts():
+    """SIGTERM to the learner mid-run (it checkpoints), the same learner started again on
+    the same port and folder: the Python actor reconnects, registers again, and the run
+    ends at its step count."""
+    cfg = write_reacher_config(os.path.join(TMP, "reacher.toml"))
+    args = ["--config", cfg, "--steps", "40000", "--actors", "1", "--checkpoint-every", "20"]
+    srv = learner("restart", *args).wait_ready()
+    actor = subprocess.Popen([sys.executable, "-m", "saver_actor", "act", "--factory", "saver_actor.examples:reacher",
+                              "--learner", srv.url, "--envs", "2"], stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(3)
+        srv.stop()
+        assert "resum" not in open(srv.log).read()
+        srv = learner("restart", *args, at=srv.port).wait_ready()
+        out, _ = actor.communicate(timeout=300)
+        assert actor.returncode == 0 and "run finished" in out, out[-2000:]
+        assert "reconnecting" in out, out[-2000:]
+        log = open(srv.log).read()
+        assert "resuming" in log, log[-2000:]
+        with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
+            st = pb_grpc.LearnerStub(ch).Status(pb.StatusRequest(), timeout=10)
+        assert st.finished and st.steps >= 40000, st
+        print(f"  learner restarted mid-run; the actor came back and the run reached {st.steps} steps")
+    finally:
+        srv.stop()
+        if actor.poll() is None:
+            actor.kill()
+
+
+def test_the_readme_example_trains():
+    """The README's "Bring your own environment" example, as a new user runs it."""
+    text = open(os.path.join(ROOT, "README.md")).read()
+    section = text[text.index("### Bring your own environment"):]
+    code = section[section.index("```python") + len("```python"):]
+    code = code[:code.index("```")]
+    d = os.path.join(TMP, "readme")
+    os.makedirs(d)
+    with open(os.path.join(d, "slider.py"), "w") as f:
+        f.write(code)
+    env = dict(os.environ, PYTHONPATH=d)
+    cli = [sys.executable, "-m", "saver_actor"]
+    toml = subprocess.run(cli + ["describe", "--factory", "slider:make"], env=env, capture_output=True, text=True,
+                          check=True).stdout
+    cfg = os.path.join(d, "slider.toml")
+    with open(cfg, "w") as f:
+        f.write("max_episode_steps = 200\n" + toml)
+    srv = learner("readme", "--config", cfg, "--algo", "a2c", "--steps", "20000", "--actors", "2").wait_ready()
+    try:
+        actors = [subprocess.Popen(cli + ["act", "--factory", "slider:make", "--envs", "4", "--learner", srv.url],
+                                   env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                  for _ in range(2)]
+        for a in actors:
+            out, _ = a.communicate(timeout=300)
+            assert a.returncode == 0 and "run finished" in out, out[-2000:]
+        with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
+            st = pb_grpc.LearnerStub(ch).Status(pb.StatusRequest(), timeout=10)
+        assert st.finished and st.env == "slider-d2" and st.steps >= 20000, st
+        print(f"  the README's slider: {st.steps} steps, mean episode length {st.mean_ep_len_100:.1f}")
     finally:
         srv.stop()
 
