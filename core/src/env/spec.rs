@@ -329,7 +329,9 @@ impl EnvSpec {
             Some(EnvKind::Bandit) => Ok(Box::new(super::Bandit::new(max_steps))),
             Some(EnvKind::Point) => Ok(Box::new(super::Point::new(self.dim(), max_steps))),
             None => Err(CoreError::Config(format!(
-                "{self} is not a preset of this build: its actors bring the env"
+                "{self} is a custom env, which this build cannot step: serve the run with \
+                 `saver learner --config FILE` and let the env's own actors act for it (Python: \
+                 `saver-actor act`, README \"Bring your own environment\")"
             ))),
         }
     }
@@ -444,7 +446,7 @@ mod tests {
             .err()
             .unwrap()
             .to_string()
-            .contains("bring"));
+            .contains("let the env's own actors act for it"));
     }
 
     #[test]
