@@ -24,6 +24,8 @@ use std::time::{SystemTime, UNIX_EPOCH};
 /// Runs `saver train` from flags.
 pub fn run(args: TrainArgs) -> Result<()> {
     let mut config = args.run.resolve()?;
+    // Its actors would be refused one by one; say so before anything starts.
+    config.env.make(config.max_episode_steps)?;
     let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();

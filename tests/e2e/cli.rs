@@ -41,6 +41,15 @@ fn bad_flags_and_files_get_clear_errors_not_panics() {
     std::fs::write(&unknown, "algo = \"a2c\"\nlearning_rate = 0.1\n").unwrap();
     let broken = dir.join("broken.toml");
     std::fs::write(&broken, "dim = [").unwrap();
+    // A custom env: `saver train` cannot step it (its actors bring it).
+    let custom = dir.join("custom.toml");
+    std::fs::write(
+        &custom,
+        "[env]\nname = \"slider\"\n[env.layout]\nobs_dim = 4\ncontinuous = 2\nchoices = 0\n\
+         aligned_start = 0\naligned_dim = 2\n[env.bounds]\nobs_low = [-1.0, -1.0, -1.0, -1.0]\n\
+         obs_high = [1.0, 1.0, 1.0, 1.0]\nmax_change = 0.05\n",
+    )
+    .unwrap();
     let cases: Vec<(Vec<String>, &str)> = vec![
         (vec!["--dim".into(), "3".into()], "even"),
         (
@@ -75,6 +84,11 @@ fn bad_flags_and_files_get_clear_errors_not_panics() {
         (
             vec!["--config".into(), broken.display().to_string()],
             "broken.toml",
+        ),
+        (
+            vec!["--config".into(), custom.display().to_string()],
+            "slider-d2 is a custom env, which this build cannot step: serve the run with \
+             `saver learner --config FILE`",
         ),
     ];
     for (args, want) in cases {
