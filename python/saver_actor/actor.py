@@ -308,19 +308,19 @@ class Actor:
             running += 1
             returns += r.astype(np.float32).sum(axis=1)
             timeout = ~success & (running >= limit)
-            if (terminated & ~success).any():
+            if terminated.any() and (terminated & ~success).any():
                 i = int(np.argmax(terminated & ~success))
                 raise EnvError(f"{d.name}: the env ended an episode at step {running[i]} without success; SAVER "
                                f"episodes end at the goal or at the step limit (declare success_radius, or make "
                                f"the env terminate only at its goal)")
-            if (truncated & ~success & ~timeout).any():
+            if truncated.any() and (truncated & ~success & ~timeout).any():
                 i = int(np.argmax(truncated & ~success & ~timeout))
                 raise EnvError(f"{d.name}: the env truncated its episode at step {running[i]}, before the run's "
                                f"step limit {limit}; set max_episode_steps = {running[i]} in the learner's config")
             done = success | timeout
             done_all[:, t] = done
             obs[:] = nxt
-            for i in np.flatnonzero(done):
+            for i in (np.flatnonzero(done) if done.any() else ()):
                 episodes[i].append(pb.Episode(length=int(running[i]), success=bool(success[i]),
                                               ret=float(returns[i])))
                 if timeout[i]:

@@ -189,7 +189,7 @@ class EnvDecl:
         if not (np.all(low == -1.0) and np.all(high == 1.0)):
             a = low + (a + 1.0) * 0.5 * (high - low)
         a = a.astype(space.dtype)
-        return [row.reshape(space.shape) for row in a]
+        return list(a) if space.shape == (self.continuous,) else [row.reshape(space.shape) for row in a]
 
     def outcome(self, obs, next_obs, rewards, terminated, infos, check=True):
         """(state_delta, vector_reward, success) of one step of every env, [E, d] and

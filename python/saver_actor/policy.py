@@ -38,6 +38,7 @@ class Gaussian:
         lo, hi = params.get("log_std_min", -math.inf), params.get("log_std_max", math.inf)
         log_std = tensors["agent.log_std"].astype(np.float32)
         self.log_std = np.clip(log_std, np.float32(lo), np.float32(hi)) if (math.isfinite(lo) or math.isfinite(hi)) else log_std
+        self.sigma = np.exp(self.log_std)
         self.payload_width = 2 * self.c + self.ch
 
     def mean(self, obs: np.ndarray) -> np.ndarray:
@@ -55,9 +56,8 @@ class Gaussian:
         mu = self.mean(obs)
         e = mu.shape[0]
         c = self.c
-        sigma = np.exp(self.log_std)
         actions = np.empty((e, c + self.ch), dtype=np.float32)
-        actions[:, :c] = mu[:, :c] + sigma * rng.standard_normal((e, c), dtype=np.float32)
+        actions[:, :c] = mu[:, :c] + self.sigma * rng.standard_normal((e, c), dtype=np.float32)
         if self.ch:
             logits = mu[:, c:]
             p = np.exp(logits - logits.max(axis=1, keepdims=True))
