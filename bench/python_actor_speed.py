@@ -14,7 +14,6 @@ import argparse
 import os
 import socket
 import subprocess
-import sys
 import tempfile
 import time
 

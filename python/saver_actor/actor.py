@@ -10,7 +10,7 @@ import queue
 import random
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Optional
 
 import grpc
@@ -240,7 +240,8 @@ class Actor:
             obs = np.stack([self._reset(i, s.seed, reply.actor_id) for i in range(e)])
             running = np.zeros(e, dtype=np.int64)
             returns = np.zeros(e, dtype=np.float32)
-            want, seq, interval, last, policy = 0, 0, 0.01, None, None
+            want, seq, interval, last = 0, 0, 0.01, None
+            policy, policy_version = None, -1
             while not self.stop.is_set():
                 timeout = None if s.mode == "sync" or seq == 0 else min(max(2 * interval, 0.002), 0.5)
                 t0 = time.monotonic()
@@ -251,8 +252,9 @@ class Actor:
                     interval = 0.8 * interval + 0.2 * (now - last[1]) / (version - last[0])
                 if last is None or version > last[0]:
                     last = (version, now)
-                if policy is None or policy_version != version:
-                    policy, policy_version = policy_for(s.policy.family, tensors, d.spec().layout, params), version
+                if policy_version != version:
+                    policy = policy_for(s.policy.family, tensors, d.spec().layout, params)
+                    policy_version = version
                 msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps)
                 msg.actor_id, msg.session, msg.seq, msg.policy_version = reply.actor_id, reply.session, seq, version
                 rollouts.send(msg)
