@@ -541,3 +541,112 @@ pub async fn provide(
     }
     hub.leave(id);
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use saver_core::env::{EnvBounds, EnvLayout};
+
+    /// obs [x, y], one continuous action, aligned entry 0.
+    fn spec() -> EnvSpec {
+        let layout = EnvLayout {
+            obs_dim: 2,
+            continuous: 1,
+            choices: 0,
+            aligned_start: 0,
+            aligned_dim: 1,
+        };
+        let bounds = EnvBounds {
+            obs_low: vec![-1.0, -1.0],
+            obs_high: vec![1.0, 1.0],
+            max_change: 0.1,
+        };
+        EnvSpec::custom("line", layout, bounds).unwrap()
+    }
+
+    /// `n` samples whose delta is their arrival number / 1e5 (each one recognisable).
+    fn batch(from: u32, n: u32) -> pb::SampleBatch {
+        pb::SampleBatch {
+            env: None,
+            n,
+            obs: (0..n).flat_map(|_| [0.5, -0.5]).collect(),
+            mu: vec![0.25; n as usize],
+            log_std: vec![-1.0; n as usize],
+            delta: (from..from + n).map(|i| i as f32 * 1e-5).collect(),
+        }
+    }
+
+    #[test]
+    fn every_streamed_sample_is_used_once_and_the_first_are_held_out() {
+        let hub = Arc::new(SampleHub::default());
+        let s = spec();
+        let (held, total) = (100usize, 5_000u32);
+        let mut source = hub.source(&s, total as u64, 7).unwrap();
+        // Three providers' chunks, delivered as they would arrive.
+        for (from, n) in [(0, 1_000), (1_000, 2_500), (3_500, 1_500)] {
+            hub.deliver(&s, check_batch(&s, &batch(from, n), n).unwrap());
+        }
+        let h = source.held_out(held).unwrap();
+        let seen: Vec<u32> = h
+            .samples
+            .delta
+            .iter()
+            .map(|d| (d * 1e5).round() as u32)
+            .collect();
+        assert_eq!(seen, (0..held as u32).collect::<Vec<_>>());
+        // x = [obs, mu, log sigma] for every sample.
+        assert_eq!(&h.samples.x[..4], &[0.5, -0.5, 0.25, -1.0]);
+        let mut drawn = Vec::new();
+        while drawn.len() < total as usize - held {
+            let b = source
+                .sample(128.min(total as usize - held - drawn.len()))
+                .unwrap();
+            drawn.extend(b.delta.iter().map(|d| (d * 1e5).round() as u32));
+        }
+        // Shuffled (not in arrival order), yet each of the rest exactly once.
+        assert_ne!(
+            drawn[..50],
+            (held as u32..held as u32 + 50).collect::<Vec<_>>()[..]
+        );
+        drawn.sort_unstable();
+        assert_eq!(drawn, (held as u32..total).collect::<Vec<_>>());
+        assert!(source.sample(1).is_err(), "more than announced");
+    }
+
+    #[test]
+    fn bad_samples_are_refused_by_what_is_wrong() {
+        let s = spec();
+        type Spoil = Box<dyn Fn(&mut pb::SampleBatch)>;
+        let cases: Vec<(Spoil, &str)> = vec![
+            (
+                Box::new(|b| b.obs[3] = 1.5),
+                "sample 1: observation entry 1 = 1.5 is outside",
+            ),
+            (
+                Box::new(|b| b.mu[0] = -1.2),
+                "mu[0] = -1.2 is outside [-1, 1]",
+            ),
+            (Box::new(|b| b.log_std[2] = 0.5), "log_std[0] = 0.5"),
+            (
+                Box::new(|b| b.delta[1] = 0.2),
+                "delta[0] = 0.2 is beyond the env's largest step",
+            ),
+            (Box::new(|b| b.delta[0] = f32::NAN), "delta[0] = NaN"),
+            (
+                Box::new(|b| b.obs.pop().map(|_| ()).unwrap_or(())),
+                "obs has 7 values, not n x 2 = 8",
+            ),
+            (
+                Box::new(|b| b.n = 9),
+                "n = 9 where 1..=4 samples are still owed",
+            ),
+        ];
+        for (spoil, want) in cases {
+            let mut b = batch(0, 4);
+            spoil(&mut b);
+            let err = check_batch(&s, &b, 4).err().unwrap().to_string();
+            assert!(err.contains(want), "{want:?} not in {err:?}");
+        }
+        assert_eq!(check_batch(&s, &batch(0, 4), 4).unwrap().n, 4);
+    }
+}
