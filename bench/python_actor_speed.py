@@ -49,7 +49,7 @@ open(cfg, "w").write("max_episode_steps = 50\n" + decl.toml())
 with socket.socket() as s:
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
-learner = subprocess.Popen([args.saver, "learner", "--config", cfg, "--mode", "async", "--actors", "1",
+learner = subprocess.Popen([args.saver, "learner", "--config", cfg, "--actors", "1",
                             "--steps", str(args.steps), "--out", os.path.join(tmp, "run"), "--exit-when-done",
                             "--listen", f"127.0.0.1:{port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 try:

@@ -85,11 +85,14 @@ def _status_error(e: grpc.RpcError, what: str) -> Exception:
 
 
 class _Weights:
-    """The newest weights from WatchWeights, on a thread of its own."""
+    """The newest weights from WatchWeights, on a thread of its own. It keeps the bytes;
+    the actor decodes the version it acts with (a fast learner publishes far more
+    versions than an actor uses, and decoding each on this thread would hold the GIL
+    the env steps need)."""
 
     def __init__(self, stub, conn: Connection):
         self.cond = threading.Condition()
-        self.latest = None  # (version, tensors)
+        self.latest = None  # (version, safetensors bytes)
         self.error: Optional[Exception] = None
         self.call = stub.WatchWeights(pb.WatchRequest(by_file=False), metadata=conn.metadata())
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -98,15 +101,12 @@ class _Weights:
     def _run(self):
         try:
             for w in self.call:
-                tensors = load_safetensors(w.safetensors)
                 with self.cond:
-                    self.latest = (w.version, tensors)
+                    self.latest = (w.version, w.safetensors)
                     self.cond.notify_all()
             err: Exception = LinkLost("the weights stream ended")
         except grpc.RpcError as e:
             err = _status_error(e, "WatchWeights")
-        except Exception as e:  # undecodable weights
-            err = Refused(f"weights: {e}")
         with self.cond:
             self.error = err
             self.cond.notify_all()
@@ -245,7 +245,7 @@ class Actor:
             while not self.stop.is_set():
                 timeout = None if s.mode == "sync" or seq == 0 else min(max(2 * interval, 0.002), 0.5)
                 t0 = time.monotonic()
-                version, tensors = weights.wait(want, timeout)
+                version, raw = weights.wait(want, timeout)
                 self.summary.wait_seconds += time.monotonic() - t0
                 now = time.monotonic()
                 if last is not None and version > last[0]:
@@ -253,6 +253,10 @@ class Actor:
                 if last is None or version > last[0]:
                     last = (version, now)
                 if policy_version != version:
+                    try:
+                        tensors = load_safetensors(raw)
+                    except Exception as e:
+                        raise Refused(f"weights version {version} do not decode: {e}") from None
                     policy = policy_for(s.policy.family, tensors, d.spec().layout, params)
                     policy_version = version
                 msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps)
