@@ -6,9 +6,10 @@
 1. bare: the actor's E Reacher-v5 envs stepped with uniform random actions (reset at
    the end of each episode), nothing else;
 2. actor: the same E envs in a saver_actor.Actor with the policy, the bookkeeping and
-   the rollout stream, against a real `saver learner` (A2C, async, so the actor does
-   not wait for every update). Reported per second of the actor's time not spent
-   waiting for weights (its own cost), and per wall second.
+   the rollout stream, against a real `saver learner` (A2C, sync: while the learner
+   updates, the actor waits and does not compete for the cores). Reported per second
+   of the actor's time not spent waiting for weights (its own cost), and per wall
+   second.
 """
 import argparse
 import os
