@@ -378,7 +378,13 @@ class Actor:
                     raise LinkLost(f"{self.name}: no learner at {self.conn.url} for {self.give_up:.0f} s ({why})")
                 wait = min(0.1 * 2 ** min(attempt, 6), 5.0) * random.uniform(0.5, 1.0)
                 attempt += 1
-                self.log(f"{self.name}: {why}; reconnecting in {wait:.2f} s")
+                if self.summary.registrations == 0 and "UNAVAILABLE" in why:
+                    # Not serving yet (a SAVER learner waits for its PCPN first): say so once.
+                    if attempt == 1:
+                        self.log(f"{self.name}: no learner serving at {self.conn.url} yet; retrying for up to "
+                                 f"{self.give_up:.0f} s")
+                else:
+                    self.log(f"{self.name}: {why}; reconnecting in {wait:.2f} s")
                 self.stop.wait(wait)
             return self.summary
         finally:
