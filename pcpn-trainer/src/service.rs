@@ -193,7 +193,10 @@ impl PcpnStoreApi for PcpnService {
     ) -> Result<Response<pb::PretrainReply>, Status> {
         let r = req.into_inner();
         let (spec, p) = wanted(r.env.as_ref(), r.settings.as_ref())?;
-        let _one_at_a_time = self.pretraining.lock().await;
+        // Held by the pretraining itself, not by this call: a caller that goes away
+        // leaves it running, and the next request for the same PCPN waits for it and
+        // then finds the file instead of starting another.
+        let one_at_a_time = self.pretraining.clone().lock_owned().await;
         if let Some((_, info)) = self.stored(&spec, &p).await? {
             return Ok(Response::new(pb::PretrainReply {
                 info: Some(info),
@@ -210,6 +213,7 @@ impl PcpnStoreApi for PcpnService {
             );
         }
         let saved = tokio::task::spawn_blocking(move || -> Result<PathBuf, String> {
+            let _one_at_a_time = one_at_a_time;
             let dev = saver_core::device();
             let every = (p.batches / 20).max(1);
             let env = spec.to_string();
