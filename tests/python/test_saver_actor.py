@@ -273,26 +273,35 @@ def test_an_actor_comes_back_after_the_learner_restarts():
             actor.kill()
 
 
+CLI = [sys.executable, "-m", "saver_actor"]
+
+
+def user_env(module, code, max_steps):
+    """A user's env module written to a folder of its own, as a new user would: the
+    environment its CLI runs with (PYTHONPATH), and the learner's config made from
+    `saver-actor describe` with the step limit in front."""
+    d = os.path.join(TMP, module)
+    os.makedirs(d)
+    with open(os.path.join(d, f"{module}.py"), "w") as f:
+        f.write(code)
+    env = dict(os.environ, PYTHONPATH=d)
+    toml = subprocess.run(CLI + ["describe", "--factory", f"{module}:make"], env=env, capture_output=True,
+                          text=True, check=True).stdout
+    cfg = os.path.join(d, f"{module}.toml")
+    with open(cfg, "w") as f:
+        f.write(f"max_episode_steps = {max_steps}\n" + toml)
+    return env, cfg, toml
+
+
 def test_the_readme_example_trains():
     """The README's "Bring your own environment" example, as a new user runs it."""
     text = open(os.path.join(ROOT, "README.md")).read()
     section = text[text.index("### Bring your own environment"):]
     code = section[section.index("```python") + len("```python"):]
-    code = code[:code.index("```")]
-    d = os.path.join(TMP, "readme")
-    os.makedirs(d)
-    with open(os.path.join(d, "slider.py"), "w") as f:
-        f.write(code)
-    env = dict(os.environ, PYTHONPATH=d)
-    cli = [sys.executable, "-m", "saver_actor"]
-    toml = subprocess.run(cli + ["describe", "--factory", "slider:make"], env=env, capture_output=True, text=True,
-                          check=True).stdout
-    cfg = os.path.join(d, "slider.toml")
-    with open(cfg, "w") as f:
-        f.write("max_episode_steps = 200\n" + toml)
+    env, cfg, _ = user_env("slider", code[:code.index("```")], 200)
     srv = learner("readme", "--config", cfg, "--algo", "a2c", "--steps", "20000", "--actors", "2").wait_ready()
     try:
-        actors = [subprocess.Popen(cli + ["act", "--factory", "slider:make", "--envs", "4", "--learner", srv.url],
+        actors = [subprocess.Popen(CLI + ["act", "--factory", "slider:make", "--envs", "4", "--learner", srv.url],
                                    env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
                   for _ in range(2)]
         for a in actors:
@@ -335,21 +344,11 @@ def make():
 def test_a_discrete_action_env_trains():
     """A Discrete action space is the categorical choice: A2C learns to walk a point to 0
     (mean episode length ~66 untrained; measured 14 after 40 k steps)."""
-    d = os.path.join(TMP, "line")
-    os.makedirs(d)
-    with open(os.path.join(d, "line.py"), "w") as f:
-        f.write(LINE)
-    env = dict(os.environ, PYTHONPATH=d)
-    cli = [sys.executable, "-m", "saver_actor"]
-    toml = subprocess.run(cli + ["describe", "--factory", "line:make"], env=env, capture_output=True, text=True,
-                          check=True).stdout
+    env, cfg, toml = user_env("line", LINE, 100)
     assert "continuous = 0\nchoices = 3" in toml, toml
-    cfg = os.path.join(d, "line.toml")
-    with open(cfg, "w") as f:
-        f.write("max_episode_steps = 100\n" + toml)
     srv = learner("line", "--config", cfg, "--steps", "40000", "--actors", "1").wait_ready()
     try:
-        out = subprocess.run(cli + ["act", "--factory", "line:make", "--envs", "4", "--learner", srv.url], env=env,
+        out = subprocess.run(CLI + ["act", "--factory", "line:make", "--envs", "4", "--learner", srv.url], env=env,
                              capture_output=True, text=True, timeout=300)
         assert out.returncode == 0, out.stderr[-2000:]
         with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
