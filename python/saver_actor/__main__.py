@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 import threading
 
@@ -29,7 +30,17 @@ def env_of(args):
         mod, _, fn = args.factory.partition(":")
         if not fn:
             sys.exit(f"--factory {args.factory!r}: expected module:function")
-        return getattr(importlib.import_module(mod), fn)()
+        # The user's module sits where they run the command (the console script's
+        # sys.path starts at its own bin folder, not there).
+        if os.getcwd() not in sys.path:
+            sys.path.insert(0, os.getcwd())
+        try:
+            module = importlib.import_module(mod)
+        except ModuleNotFoundError as e:
+            sys.exit(f"--factory {args.factory!r}: {e} (run from the folder that holds it, or set PYTHONPATH)")
+        if not hasattr(module, fn):
+            sys.exit(f"--factory {args.factory!r}: {mod} has no {fn}")
+        return getattr(module, fn)()
     if not args.env_id or not args.aligned or args.max_change is None:
         sys.exit("give --factory module:function, or --env-id with --aligned and --max-change")
     import gymnasium as gym

@@ -273,24 +273,24 @@ def test_an_actor_comes_back_after_the_learner_restarts():
             actor.kill()
 
 
-CLI = [sys.executable, "-m", "saver_actor"]
+# The console script pip installs, as a user runs it (from the folder of their module).
+CLI = [os.path.join(os.path.dirname(sys.executable), "saver-actor")]
 
 
 def user_env(module, code, max_steps):
-    """A user's env module written to a folder of its own, as a new user would: the
-    environment its CLI runs with (PYTHONPATH), and the learner's config made from
+    """A user's env module written to a folder of its own, as a new user would: that
+    folder (the CLI runs there, with no PYTHONPATH), and the learner's config made from
     `saver-actor describe` with the step limit in front."""
     d = os.path.join(TMP, module)
     os.makedirs(d)
     with open(os.path.join(d, f"{module}.py"), "w") as f:
         f.write(code)
-    env = dict(os.environ, PYTHONPATH=d)
-    toml = subprocess.run(CLI + ["describe", "--factory", f"{module}:make"], env=env, capture_output=True,
+    toml = subprocess.run(CLI + ["describe", "--factory", f"{module}:make"], cwd=d, capture_output=True,
                           text=True, check=True).stdout
     cfg = os.path.join(d, f"{module}.toml")
     with open(cfg, "w") as f:
         f.write(f"max_episode_steps = {max_steps}\n" + toml)
-    return env, cfg, toml
+    return d, cfg, toml
 
 
 def test_the_readme_example_trains():
@@ -298,11 +298,11 @@ def test_the_readme_example_trains():
     text = open(os.path.join(ROOT, "README.md")).read()
     section = text[text.index("### Bring your own environment"):]
     code = section[section.index("```python") + len("```python"):]
-    env, cfg, _ = user_env("slider", code[:code.index("```")], 200)
+    d, cfg, _ = user_env("slider", code[:code.index("```")], 200)
     srv = learner("readme", "--config", cfg, "--algo", "a2c", "--steps", "20000", "--actors", "2").wait_ready()
     try:
         actors = [subprocess.Popen(CLI + ["act", "--factory", "slider:make", "--envs", "4", "--learner", srv.url],
-                                   env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                                   cwd=d, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
                   for _ in range(2)]
         for a in actors:
             out, _ = a.communicate(timeout=300)
@@ -344,11 +344,11 @@ def make():
 def test_a_discrete_action_env_trains():
     """A Discrete action space is the categorical choice: A2C learns to walk a point to 0
     (mean episode length ~66 untrained; measured 14 after 40 k steps)."""
-    env, cfg, toml = user_env("line", LINE, 100)
+    d, cfg, toml = user_env("line", LINE, 100)
     assert "continuous = 0\nchoices = 3" in toml, toml
     srv = learner("line", "--config", cfg, "--steps", "40000", "--actors", "1").wait_ready()
     try:
-        out = subprocess.run(CLI + ["act", "--factory", "line:make", "--envs", "4", "--learner", srv.url], env=env,
+        out = subprocess.run(CLI + ["act", "--factory", "line:make", "--envs", "4", "--learner", srv.url], cwd=d,
                              capture_output=True, text=True, timeout=300)
         assert out.returncode == 0, out.stderr[-2000:]
         with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
