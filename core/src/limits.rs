@@ -5,7 +5,6 @@
 
 use crate::acting::PolicyFamily;
 use crate::env::{EnvBounds, EnvLayout};
-use crate::nets::slack;
 use crate::rollout::Rollout;
 use crate::{CoreError, Result};
 use std::sync::Arc;
@@ -34,35 +33,27 @@ impl RolloutLimits {
     /// Checks every value of `r` (whose shapes [`Rollout::validate`] checked) against
     /// the limits; the error names the first value outside them.
     pub fn check(&self, r: &Rollout) -> Result<()> {
-        let l = &self.layout;
         let out = |name: &str, i: usize, v: f32, what: String| {
             Err(CoreError::Data(format!(
                 "rollout {name}[{i}] = {v} is outside {what}"
             )))
         };
-        let obs_in = |name: &str, obs: &[f32]| -> Result<()> {
-            for (i, &v) in obs.iter().enumerate() {
-                let k = i % l.obs_dim;
+        for (name, obs) in [("obs", &r.obs), ("timeout_obs", &r.timeout_obs)] {
+            if let Some((i, k)) = self.env.obs_outside(obs) {
                 let (lo, hi) = (self.env.obs_low[k], self.env.obs_high[k]);
-                if v < lo - slack(lo) || v > hi + slack(hi) {
-                    return out(
-                        name,
-                        i,
-                        v,
-                        format!("the env's range [{lo}, {hi}] of entry {k}"),
-                    );
-                }
+                return out(
+                    name,
+                    i,
+                    obs[i],
+                    format!("the env's range [{lo}, {hi}] of entry {k}"),
+                );
             }
-            Ok(())
-        };
-        obs_in("obs", &r.obs)?;
-        obs_in("timeout_obs", &r.timeout_obs)?;
-        let change = self.env.max_change + slack(self.env.max_change);
+        }
         for (name, data) in [
             ("state_delta", &r.state_delta),
             ("vector_reward", &r.vector_reward),
         ] {
-            if let Some(i) = data.iter().position(|v| v.abs() > change) {
+            if let Some(i) = self.env.change_beyond(data) {
                 return out(
                     name,
                     i,

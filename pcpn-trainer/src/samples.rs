@@ -14,6 +14,7 @@
 
 use rand::Rng;
 use saver_core::env::EnvSpec;
+use saver_core::nets::slack;
 use saver_core::pretrain::{SampleSource, Samples};
 use saver_core::rng::{rng_for, SaverRng};
 use saver_core::{CoreError, Result};
@@ -30,10 +31,6 @@ pub const QUEUED_CHUNKS: u64 = 8;
 pub const SHUFFLE: usize = 65_536;
 /// How often a waiting pretraining says what it waits for.
 const SAY_EVERY: Duration = Duration::from_secs(30);
-/// Slack on the bounds a sample is checked against (f32 rounding of a provider's f64).
-fn slack(b: f32) -> f32 {
-    b.abs() * 1e-5 + 1e-6
-}
 
 /// What the pretraining in progress wants.
 struct Want {
@@ -407,49 +404,39 @@ pub fn check_batch(spec: &EnvSpec, b: &pb::SampleBatch, room: u32) -> Result<Sam
             ));
         }
     }
-    for i in 0..n {
-        for k in 0..l.obs_dim {
-            let (v, lo, hi) = (
-                b.obs[i * l.obs_dim + k],
-                bounds.obs_low[k],
-                bounds.obs_high[k],
-            );
-            if !(v >= lo - slack(lo) && v <= hi + slack(hi)) {
-                return bad(format!(
-                    "sample {i}: observation entry {k} = {v} is outside the env's declared \
-                     bounds [{lo}, {hi}]"
-                ));
-            }
-        }
-        for (j, &m) in b.mu[i * l.mu_dim()..(i + 1) * l.mu_dim()]
-            .iter()
-            .enumerate()
-        {
-            if !(-1.0 - slack(1.0)..=1.0 + slack(1.0)).contains(&m) {
-                return bad(format!("sample {i}: mu[{j}] = {m} is outside [-1, 1]"));
-            }
-        }
-        let lo = (1e-10f32).ln();
-        let c = l.log_std_dim();
-        for (j, &s) in b.log_std[i * c..(i + 1) * c].iter().enumerate() {
-            if !(lo - slack(lo)..=slack(0.0)).contains(&s) {
-                return bad(format!(
-                    "sample {i}: log_std[{j}] = {s} is outside [ln 1e-10, 0] (sigma ~ U(0, 1))"
-                ));
-            }
-        }
-        let change = bounds.max_change + slack(bounds.max_change);
-        for (j, &dl) in b.delta[i * l.aligned_dim..(i + 1) * l.aligned_dim]
-            .iter()
-            .enumerate()
-        {
-            if dl.is_nan() || dl.abs() > change {
-                return bad(format!(
-                    "sample {i}: delta[{j}] = {dl} is beyond the env's largest step +-{}",
-                    bounds.max_change
-                ));
-            }
-        }
+    if let Some((i, k)) = bounds.obs_outside(&b.obs) {
+        let (v, lo, hi) = (b.obs[i], bounds.obs_low[k], bounds.obs_high[k]);
+        return bad(format!(
+            "sample {}: observation entry {k} = {v} is outside the env's declared bounds \
+             [{lo}, {hi}]",
+            i / l.obs_dim
+        ));
+    }
+    let m = l.mu_dim();
+    if let Some(i) =
+        b.mu.iter()
+            .position(|v| v.is_nan() || v.abs() > 1.0 + slack(1.0))
+    {
+        let (s, j, v) = (i / m, i % m, b.mu[i]);
+        return bad(format!("sample {s}: mu[{j}] = {v} is outside [-1, 1]"));
+    }
+    let (lo, c) = ((1e-10f32).ln(), l.log_std_dim());
+    if let Some(i) = b
+        .log_std
+        .iter()
+        .position(|v| !(lo - slack(lo)..=slack(0.0)).contains(v))
+    {
+        let (s, j, v) = (i / c, i % c, b.log_std[i]);
+        return bad(format!(
+            "sample {s}: log_std[{j}] = {v} is outside [ln 1e-10, 0] (sigma ~ U(0, 1))"
+        ));
+    }
+    if let Some(i) = bounds.change_beyond(&b.delta) {
+        let (s, j, v) = (i / l.aligned_dim, i % l.aligned_dim, b.delta[i]);
+        return bad(format!(
+            "sample {s}: delta[{j}] = {v} is beyond the env's largest step +-{}",
+            bounds.max_change
+        ));
     }
     let mut x = Vec::with_capacity(n * l.pcpn_input_dim());
     for i in 0..n {

@@ -257,7 +257,7 @@ class Actor:
                         tensors = load_safetensors(raw)
                     except Exception as e:
                         raise Refused(f"weights version {version} do not decode: {e}") from None
-                    policy = policy_for(s.policy.family, tensors, d.spec().layout, params)
+                    policy = policy_for(s.policy.family, tensors, s.env.layout, params)
                     policy_version = version
                 msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps)
                 msg.actor_id, msg.session, msg.seq, msg.policy_version = reply.actor_id, reply.session, seq, version

@@ -24,7 +24,8 @@ use std::time::{SystemTime, UNIX_EPOCH};
 /// Runs `saver train` from flags.
 pub fn run(args: TrainArgs) -> Result<()> {
     let mut config = args.run.resolve()?;
-    // Its actors would be refused one by one; say so before anything starts.
+    // An env this build cannot step fails before the run folder is made (its actors
+    // would fail at once and end the run).
     config.env.make(config.max_episode_steps)?;
     let out = args.out.clone().unwrap_or_else(|| default_run_dir(&config));
     let stop = Arc::new(AtomicBool::new(false));
@@ -262,22 +263,44 @@ pub fn train_with(
             session: rand::random(),
             n_envs: config.envs_per_actor,
         };
+        let hub = learner.hub.clone();
         actors.push(
             std::thread::Builder::new()
                 .name(format!("saver-actor-{i}"))
-                .spawn(move || run_actor_from(&mut link, &reg, &stop, &saved))?,
+                .spawn(move || {
+                    // The embedded actors are alike: one that fails (a bad checkpoint,
+                    // an env it cannot make) ends the run instead of leaving the
+                    // others to wait for it.
+                    let r = run_actor_from(&mut link, &reg, &stop, &saved);
+                    if let Err(e) = &r {
+                        hub.close(&format!("actor {i} failed: {e}"));
+                    }
+                    r
+                })?,
         );
     }
     let (hub, outcome) = follow(learner, config, show, |_| {})?;
     hub.close("run over");
-    for a in actors {
+    let mut failed = None;
+    for (i, a) in actors.into_iter().enumerate() {
         match a.join() {
             Ok(Ok(_)) => {}
-            Ok(Err(e)) => tracing::warn!("actor ended with an error: {e}"),
-            Err(_) => tracing::warn!("an actor thread panicked"),
+            Ok(Err(e)) => {
+                failed.get_or_insert(anyhow::anyhow!("actor {i} failed: {e}"));
+            }
+            Err(_) => {
+                failed.get_or_insert(anyhow::anyhow!("actor {i} panicked"));
+            }
         }
     }
-    Ok(outcome)
+    match failed {
+        Some(e) => Err(e.context(format!(
+            "the run stopped at step {} (its checkpoint is in {})",
+            outcome.steps,
+            out.display()
+        ))),
+        None => Ok(outcome),
+    }
 }
 
 /// Prints the run's summary and where its outputs went.

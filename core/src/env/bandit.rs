@@ -8,7 +8,7 @@
 //! moves it to p' = 1 − R(a), so the vector reward |p| − |p'| is R(a); success is
 //! R(a) > 0.9 (|p'| < 0.1), and every episode ends after its one step.
 
-use super::{finish_step, Env, EnvLayout, Step};
+use super::{Cube, Env, EnvLayout, Step};
 use crate::rng::SaverRng;
 
 /// The reward of action `a` (clipped to [-1, 1]).
@@ -21,25 +21,17 @@ pub fn bandit_reward(a: f32) -> f32 {
 
 /// The bandit; its state is the position p and the step count.
 pub struct Bandit {
-    /// Position p (1 at reset).
-    pos: Vec<f32>,
-    /// Goal (the origin).
-    goal: Vec<f32>,
-    /// Steps in this episode (0 or 1).
-    steps: u32,
-    /// Episode limit: 1 ([`super::EnvKind::fixed_episode_steps`]; runs are held to it).
-    max_steps: u32,
+    /// Position (1 at reset), goal (the origin), steps (0 or 1) and the limit: 1
+    /// ([`super::EnvKind::fixed_episode_steps`]; runs are held to it).
+    cube: Cube,
 }
 
 impl Bandit {
     /// A fresh bandit with the step limit `max_steps` (1 in every valid run).
     pub fn new(max_steps: u32) -> Self {
-        Self {
-            pos: vec![1.0],
-            goal: vec![0.0],
-            steps: 0,
-            max_steps,
-        }
+        let mut cube = Cube::new(1, max_steps);
+        cube.pos[0] = 1.0;
+        Self { cube }
     }
 }
 
@@ -49,34 +41,16 @@ impl Env for Bandit {
     }
 
     fn reset(&mut self, _rng: &mut SaverRng, obs: &mut [f32]) {
-        self.pos[0] = 1.0;
-        self.steps = 0;
-        obs.copy_from_slice(&self.pos);
+        self.cube.pos[0] = 1.0;
+        self.cube.start(obs);
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
-        let before = self.pos.clone();
-        self.pos[0] = 1.0 - bandit_reward(action[0]);
-        self.steps += 1;
-        obs.copy_from_slice(&self.pos);
-        finish_step(&before, &self.pos, &self.goal, self.steps, self.max_steps)
+        self.cube
+            .advance(obs, |pos| pos[0] = 1.0 - bandit_reward(action[0]))
     }
 
-    fn steps(&self) -> u32 {
-        self.steps
-    }
-
-    fn goal(&self) -> Vec<f32> {
-        self.goal.clone()
-    }
-
-    fn snapshot(&self) -> Vec<f32> {
-        super::snapshot_of(&self.pos, &self.goal, self.steps)
-    }
-
-    fn restore(&mut self, state: &[f32]) -> crate::Result<()> {
-        super::restore_into(state, &mut self.pos, &mut self.goal, &mut self.steps)
-    }
+    cube_state!();
 }
 
 #[cfg(test)]

@@ -6,13 +6,6 @@
 //! presets of it ([`EnvKind`]), and any [`Env`] of a spec's layout can act in it.
 //! Vector reward `r = |p - g| - |p' - g|` element-wise; the scalar reward is its sum.
 
-mod angle;
-mod arm;
-mod bandit;
-mod point;
-mod select;
-mod spec;
-
 pub use angle::Angle;
 pub use arm::{hand, wrap_angle, Arm};
 pub use bandit::{bandit_reward, Bandit};
@@ -98,6 +91,81 @@ pub(crate) fn restore_into(
     Ok(())
 }
 
+/// The state every cube env (angle, select, point, the bandit) is made of — the
+/// position p (the state-aligned part and the whole observation), the goal, the step
+/// count and its limit — with what they do alike; each env adds only its move.
+pub(crate) struct Cube {
+    /// Position p.
+    pub(crate) pos: Vec<f32>,
+    /// Goal g (the origin unless a test moves it).
+    pub(crate) goal: Vec<f32>,
+    /// Steps in this episode.
+    pub(crate) steps: u32,
+    /// Episode limit.
+    pub(crate) max_steps: u32,
+}
+
+impl Cube {
+    /// A d-cube at the origin with the goal at the origin.
+    pub(crate) fn new(dim: usize, max_steps: u32) -> Self {
+        Self {
+            pos: vec![0.0; dim],
+            goal: vec![0.0; dim],
+            steps: 0,
+            max_steps,
+        }
+    }
+
+    /// Starts an episode from the current position: the step count to 0, `obs` = p.
+    pub(crate) fn start(&mut self, obs: &mut [f32]) {
+        self.steps = 0;
+        obs.copy_from_slice(&self.pos);
+    }
+
+    /// Starts an episode at p ~ U(-1, 1)^d.
+    pub(crate) fn start_uniform(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {
+        use rand::Rng;
+        for p in &mut self.pos {
+            *p = rng.random_range(-1.0f32..1.0);
+        }
+        self.start(obs);
+    }
+
+    /// One step: `mv` moves p, then the step is counted, `obs` = p' and the vector
+    /// reward, success and timeout follow from p, p' and g ([`finish_step`]).
+    pub(crate) fn advance(&mut self, obs: &mut [f32], mv: impl FnOnce(&mut [f32])) -> Step {
+        let before = self.pos.clone();
+        mv(&mut self.pos);
+        self.steps += 1;
+        obs.copy_from_slice(&self.pos);
+        finish_step(&before, &self.pos, &self.goal, self.steps, self.max_steps)
+    }
+}
+
+/// The [`Env`] methods a cube env gets from its [`Cube`] (a field `cube`): the step
+/// count, the goal, and the snapshot and restore of its state. (Defined before the env
+/// modules, which use it.)
+macro_rules! cube_state {
+    () => {
+        fn steps(&self) -> u32 {
+            self.cube.steps
+        }
+
+        fn goal(&self) -> Vec<f32> {
+            self.cube.goal.clone()
+        }
+
+        fn snapshot(&self) -> Vec<f32> {
+            super::snapshot_of(&self.cube.pos, &self.cube.goal, self.cube.steps)
+        }
+
+        fn restore(&mut self, state: &[f32]) -> crate::Result<()> {
+            let c = &mut self.cube;
+            super::restore_into(state, &mut c.pos, &mut c.goal, &mut c.steps)
+        }
+    };
+}
+
 /// Shared bookkeeping of the cube environments and the arm: the vector reward, strict
 /// success and the step limit, from the aligned state before and after a step.
 pub(crate) fn finish_step(
@@ -123,6 +191,13 @@ pub(crate) fn finish_step(
         timeout: !success && steps >= max_steps,
     }
 }
+
+mod angle;
+mod arm;
+mod bandit;
+mod point;
+mod select;
+mod spec;
 
 #[cfg(test)]
 mod tests;

@@ -4,55 +4,43 @@
 //! so a vector advantage can be applied to each action dim directly (standalone QRRL's
 //! vector variant, docs/ALGORITHM.md §14); for SAVER and A2C it is one more cube.
 
-use super::{finish_step, Angle, Env, EnvLayout, Step};
+use super::{Cube, Env, EnvLayout, Step};
 use crate::rng::SaverRng;
 
 /// The d-cube with one action dim per coordinate; goal at the origin. The same state,
-/// reset and bookkeeping as [`Angle`]'s cube; only the move differs.
-pub struct Point(Angle);
+/// reset and bookkeeping as [`super::Angle`]'s cube ([`Cube`]); only the move differs.
+pub struct Point {
+    /// Position, goal, steps and limit.
+    cube: Cube,
+}
 
 impl Point {
     /// A d-cube with the goal at the origin.
     pub fn new(dim: usize, max_steps: u32) -> Self {
-        Self(Angle::new(dim, max_steps))
+        Self {
+            cube: Cube::new(dim, max_steps),
+        }
     }
 }
 
 impl Env for Point {
     fn layout(&self) -> EnvLayout {
-        super::EnvKind::Point.layout(self.0.pos.len())
+        super::EnvKind::Point.layout(self.cube.pos.len())
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {
-        self.0.reset(rng, obs)
+        self.cube.start_uniform(rng, obs);
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
-        let c = &mut self.0;
-        let before = c.pos.clone();
-        for (p, &a) in c.pos.iter_mut().zip(action) {
-            *p = (*p + 0.1 * a.clamp(-1.0, 1.0)).clamp(-1.0, 1.0);
-        }
-        c.steps += 1;
-        obs.copy_from_slice(&c.pos);
-        finish_step(&before, &c.pos, &c.goal, c.steps, c.max_steps)
+        self.cube.advance(obs, |pos| {
+            for (p, &a) in pos.iter_mut().zip(action) {
+                *p = (*p + 0.1 * a.clamp(-1.0, 1.0)).clamp(-1.0, 1.0);
+            }
+        })
     }
 
-    fn steps(&self) -> u32 {
-        self.0.steps()
-    }
-
-    fn goal(&self) -> Vec<f32> {
-        self.0.goal()
-    }
-
-    fn snapshot(&self) -> Vec<f32> {
-        self.0.snapshot()
-    }
-
-    fn restore(&mut self, state: &[f32]) -> crate::Result<()> {
-        self.0.restore(state)
-    }
+    cube_state!();
 }
 
 #[cfg(test)]

@@ -4,6 +4,7 @@
 //! own ([`EnvSpec::custom`]) whose actors bring the env itself.
 
 use super::{Angle, Arm, Env, Select};
+use crate::nets::slack;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -171,6 +172,26 @@ pub struct EnvBounds {
     pub obs_high: Vec<f32>,
     /// Largest |p' - p| of one aligned coordinate in one step.
     pub max_change: f32,
+}
+
+impl EnvBounds {
+    /// The first value of `obs` (observations back to back) outside its entry's range,
+    /// as (index in `obs`, entry); rounding slack passes, NaN does not.
+    pub fn obs_outside(&self, obs: &[f32]) -> Option<(usize, usize)> {
+        let n = self.obs_low.len();
+        obs.iter().enumerate().find_map(|(i, &v)| {
+            let k = i % n;
+            let (lo, hi) = (self.obs_low[k], self.obs_high[k]);
+            (!(v >= lo - slack(lo) && v <= hi + slack(hi))).then_some((i, k))
+        })
+    }
+
+    /// The index of the first of `changes` (aligned changes or vector rewards) beyond
+    /// ±max_change; rounding slack passes, NaN does not.
+    pub fn change_beyond(&self, changes: &[f32]) -> Option<usize> {
+        let limit = self.max_change + slack(self.max_change);
+        changes.iter().position(|v| v.is_nan() || v.abs() > limit)
+    }
 }
 
 /// An environment: the identity of the dynamics a PCPN models and what actors and the
