@@ -75,13 +75,14 @@ fn variant(c: &RunConfig) -> String {
     let def = RunConfig::recommended(&c.env, c.algo, c.steps);
     let paper = RunConfig::paper(&c.env, c.algo, c.steps);
     let mut parts = Vec::new();
-    if c.lr != def.lr && c.lr != paper.lr {
+    let faithful = c.algo == saver_core::config::Algo::Saver
+        && c.head == paper.head
+        && c.optimizer == paper.optimizer;
+    // The rate is news where it is not the one of the settings the run started from.
+    if c.lr != if faithful { paper.lr } else { def.lr } {
         parts.push(format!("lr {}", c.lr));
     }
-    if c.algo == saver_core::config::Algo::Saver
-        && c.head == paper.head
-        && c.optimizer == paper.optimizer
-    {
+    if faithful {
         parts.push("faithful".to_string());
     }
     if parts.is_empty() {

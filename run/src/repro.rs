@@ -8,6 +8,7 @@ use crate::figures;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use saver_core::config::RunConfig;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -74,6 +75,49 @@ pub struct ReproArgs {
     /// a smaller grid for a quick look).
     #[arg(long)]
     pub pretrain_batches: Option<u64>,
+    /// A further variant of the grid, `NAME=FLAGS` (`saver train` flags, e.g.
+    /// `--variant "saver-lr3e-3=--algo saver --lr 0.003"`); repeatable.
+    #[arg(long = "variant", value_parser = parse_variant)]
+    pub variants: Vec<(String, Vec<String>)>,
+    /// Leave out the built-in variants (only the `--variant`s run).
+    #[arg(long)]
+    pub only_variants: bool,
+}
+
+/// Flags a variant may not set: the grid sets them per run.
+const GRID_FLAGS: [&str; 6] = ["--env", "--dim", "--seed", "--steps", "--out", "--pcpn-dir"];
+
+/// Parses `NAME=FLAGS` of `--variant`.
+fn parse_variant(s: &str) -> Result<(String, Vec<String>), String> {
+    let (name, flags) = s
+        .split_once('=')
+        .ok_or_else(|| format!("--variant {s:?}: expected NAME=FLAGS"))?;
+    let name = name.trim();
+    if name.is_empty()
+        || !name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+    {
+        return Err(format!(
+            "--variant {s:?}: the name must be letters, digits, '-', '_' or '.' (it names run folders)"
+        ));
+    }
+    let flags: Vec<String> = flags.split_whitespace().map(str::to_string).collect();
+    if !flags
+        .iter()
+        .any(|f| f == "--algo" || f.starts_with("--algo="))
+    {
+        return Err(format!("--variant {s:?}: its flags must name the --algo"));
+    }
+    if let Some(f) = flags
+        .iter()
+        .find(|f| GRID_FLAGS.contains(&f.split('=').next().unwrap_or(f)))
+    {
+        return Err(format!(
+            "--variant {s:?}: {f} is set by the grid (use --dims, --seeds, --steps, --out, --pcpn-dir)"
+        ));
+    }
+    Ok((name.to_string(), flags))
 }
 
 /// One run of the grid.
@@ -88,13 +132,19 @@ fn cells(a: &ReproArgs, root: &Path) -> Vec<Cell> {
     let dims = a.dims.clone().unwrap_or(dims);
     let seeds = a.seeds.clone().unwrap_or(seeds);
     let steps = a.steps.unwrap_or(steps);
-    let mut variants = vec![
-        ("saver", vec!["--algo", "saver"]),
-        ("a2c", vec!["--algo", "a2c"]),
-    ];
-    if !a.no_faithful {
-        variants.insert(1, ("saver-faithful", vec!["--algo", "saver", "--faithful"]));
+    let owned = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    let mut variants: Vec<(String, Vec<String>)> = Vec::new();
+    if !a.only_variants {
+        variants.push(("saver".into(), owned(&["--algo", "saver"])));
+        if !a.no_faithful {
+            variants.push((
+                "saver-faithful".into(),
+                owned(&["--algo", "saver", "--faithful"]),
+            ));
+        }
+        variants.push(("a2c".into(), owned(&["--algo", "a2c"])));
     }
+    variants.extend(a.variants.iter().cloned());
     let mut out = Vec::new();
     // The dimensions, then the seeds, outermost: every series gets its first seeds early.
     for &seed in &seeds {
@@ -103,7 +153,7 @@ fn cells(a: &ReproArgs, root: &Path) -> Vec<Cell> {
                 let name = format!("{env}-d{d}-{variant}-seed{seed}");
                 let dir = root.join(&name);
                 let mut args: Vec<String> = vec!["train".into()];
-                args.extend(flags.iter().map(|s| s.to_string()));
+                args.extend(flags.iter().cloned());
                 for (k, v) in [
                     ("--env", env.to_string()),
                     ("--dim", d.to_string()),
@@ -114,7 +164,10 @@ fn cells(a: &ReproArgs, root: &Path) -> Vec<Cell> {
                 ] {
                     args.extend([k.to_string(), v]);
                 }
-                if let (Some(n), true) = (a.pretrain_batches, variant.starts_with("saver")) {
+                let own_batches = flags
+                    .iter()
+                    .any(|f| f.starts_with("--pretrain-batches") || f.starts_with("--batches"));
+                if let (Some(n), true, false) = (a.pretrain_batches, is_saver(&args), own_batches) {
                     args.extend(["--pretrain-batches".to_string(), n.to_string()]);
                 }
                 out.push(Cell { name, dir, args });
@@ -122,6 +175,102 @@ fn cells(a: &ReproArgs, root: &Path) -> Vec<Cell> {
         }
     }
     out
+}
+
+/// What made a figure: the command, the commit, the machine, and per group its runs
+/// and the PCPN each SAVER run used (weights sha256 and pretraining settings, from its
+/// config.toml).
+fn manifest(groups: &[figures::Group]) -> Result<String> {
+    let quote = |a: String| {
+        if a.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.,/=:".contains(c))
+        {
+            a
+        } else {
+            format!("'{}'", a.replace('\'', r"'\''"))
+        }
+    };
+    let command: Vec<String> = std::env::args().skip(1).map(quote).collect();
+    let commit = Command::new("git")
+        .args(["rev-parse", "HEAD"])
+        .stderr(Stdio::null())
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        .unwrap_or_else(|| "unknown (not run from a git checkout)".into());
+    let read = |f: &str, key: &str| {
+        std::fs::read_to_string(f)
+            .ok()
+            .and_then(|t| t.lines().find(|l| l.starts_with(key)).map(str::to_string))
+            .and_then(|l| Some(l.split_once(':')?.1.trim().to_string()))
+    };
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let mut out = format!(
+        "# How this figure was made\n\n- command: `saver {}`\n- saver {} at commit {commit}\n- machine: {cores} logical CPUs ({}), {} memory\n\n## Groups\n\n",
+        command.join(" "),
+        env!("CARGO_PKG_VERSION"),
+        read("/proc/cpuinfo", "model name").unwrap_or_else(|| "CPU unknown".into()),
+        read("/proc/meminfo", "MemTotal").unwrap_or_else(|| "unknown".into()),
+    );
+    for g in groups {
+        out += &format!("- **{}**: {} runs\n", g.label, g.runs.len());
+        for (dir, _) in &g.runs {
+            let path = dir.join("config.toml");
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            let c: RunConfig =
+                toml::from_str(&text).with_context(|| format!("reading {}", path.display()))?;
+            let name = dir
+                .file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().into());
+            let pcpn = match &c.pcpn_sha256 {
+                None => String::new(),
+                Some(sha) => {
+                    let p = &c.pretrain;
+                    format!(
+                        ": PCPN weights sha256 {sha} (pretrained {} batches x {}, K {}, {} lr {}, seed {}, {} samples)",
+                        p.batches,
+                        p.batch_size,
+                        p.quantiles,
+                        p.optimizer.name(),
+                        p.lr,
+                        p.seed,
+                        p.samples.name()
+                    )
+                }
+            };
+            out += &format!("  - `{name}` (seed {}, {} steps){pcpn}\n", c.seed, c.steps);
+        }
+    }
+    Ok(out)
+}
+
+/// Whether `saver train` args run SAVER (which needs a PCPN).
+fn is_saver(args: &[String]) -> bool {
+    args.iter().any(|f| f == "--algo=saver")
+        || args.windows(2).any(|w| w[0] == "--algo" && w[1] == "saver")
+}
+
+/// The `saver pretrain` args of a SAVER run's `saver train` args: its env, PCPN store,
+/// `--faithful` and every `--pretrain-*` setting.
+fn pretrain_args(train: &[String]) -> Vec<String> {
+    let mut p = vec!["pretrain".to_string()];
+    let mut i = 0;
+    while i < train.len() {
+        let f = &train[i];
+        let key = f.split('=').next().unwrap_or(f);
+        let keep = ["--env", "--dim", "--pcpn-dir", "--batches"].contains(&key)
+            || key.starts_with("--pretrain-");
+        if f == "--faithful" || (keep && f.contains('=')) {
+            p.push(f.clone());
+        } else if keep && i + 1 < train.len() {
+            p.extend([f.clone(), train[i + 1].clone()]);
+            i += 1;
+        }
+        i += 1;
+    }
+    p
 }
 
 /// Steps a run folder's checkpoint holds (0 without one).
@@ -153,17 +302,8 @@ pub fn run(a: ReproArgs) -> Result<()> {
     // The PCPNs first, one at a time (cached ones are found at once), so that runs in
     // parallel never pretrain the same one twice.
     for c in &todo {
-        if c.args.iter().any(|x| x == "saver") {
-            let mut p = vec!["pretrain".to_string()];
-            let keep = ["--env", "--dim", "--pcpn-dir", "--pretrain-batches"];
-            for w in c.args.windows(2) {
-                if keep.contains(&w[0].as_str()) {
-                    p.extend([w[0].clone(), w[1].clone()]);
-                }
-            }
-            if c.args.iter().any(|x| x == "--faithful") {
-                p.push("--faithful".into());
-            }
+        if is_saver(&c.args) {
+            let p = pretrain_args(&c.args);
             let status = Command::new(&exe)
                 .args(&p)
                 .stdout(Stdio::null())
@@ -239,14 +379,103 @@ pub fn run(a: ReproArgs) -> Result<()> {
         figures::draw(&groups, &root.join(format!("figure.{ext}")))?;
     }
     std::fs::write(root.join("table.md"), &table)?;
+    std::fs::write(root.join("manifest.md"), manifest(&groups)?)?;
     crate::out!("{table}");
     crate::out!(
-        "figure: {} (and .svg); table: {}",
+        "figure: {} (and .svg); table: {}; command, commit, machine and PCPNs: {}",
         root.join("figure.png").display(),
-        root.join("table.md").display()
+        root.join("table.md").display(),
+        root.join("manifest.md").display()
     );
     if !failed.is_empty() {
         bail!("{} runs failed: {}", failed.len(), failed.join(", "));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn strings(s: &str) -> Vec<String> {
+        s.split_whitespace().map(str::to_string).collect()
+    }
+
+    #[test]
+    fn a_variant_is_a_name_and_train_flags_that_leave_the_grid_alone() {
+        let (name, flags) = parse_variant("saver-lr3e-3=--algo saver --lr 0.003").unwrap();
+        assert_eq!(name, "saver-lr3e-3");
+        assert_eq!(flags, strings("--algo saver --lr 0.003"));
+        for (bad, says) in [
+            ("--algo saver", "NAME=FLAGS"),
+            ("a/b=--algo saver", "the name must be"),
+            ("=--algo saver", "the name must be"),
+            ("x=--lr 0.003", "--algo"),
+            ("x=--algo saver --dim 4", "--dim is set by the grid"),
+            ("x=--algo saver --seed=3", "--seed=3 is set by the grid"),
+        ] {
+            let e = parse_variant(bad).unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn pretraining_gets_the_runs_env_store_and_pretrain_settings_only() {
+        let train = strings(
+            "train --algo saver --faithful --pretrain-batches 100000 --pretrain-lr=0.002 --lr 0.003 \
+             --env angle --dim 16 --seed 4 --steps 100 --out r/x --pcpn-dir p",
+        );
+        assert!(is_saver(&train));
+        assert_eq!(
+            pretrain_args(&train),
+            strings(
+                "pretrain --faithful --pretrain-batches 100000 --pretrain-lr=0.002 \
+                 --env angle --dim 16 --pcpn-dir p"
+            )
+        );
+        assert!(!is_saver(&strings("train --algo a2c --env angle")));
+        assert!(is_saver(&strings("train --algo=saver")));
+    }
+
+    #[test]
+    fn the_grid_takes_the_builtin_variants_then_the_users() {
+        let a = ReproArgs {
+            figure: Figure::Fig5,
+            out: "o".into(),
+            steps: Some(1000),
+            seeds: Some(vec![7]),
+            dims: None,
+            jobs: 1,
+            no_faithful: true,
+            pcpn_dir: "p".into(),
+            pretrain_batches: Some(50),
+            variants: vec![parse_variant("fast=--algo saver --lr 0.003").unwrap()],
+            only_variants: false,
+        };
+        let c = cells(&a, Path::new("o/fig5"));
+        let names: Vec<&str> = c.iter().map(|c| c.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "arm-d2-saver-seed7",
+                "arm-d2-a2c-seed7",
+                "arm-d2-fast-seed7"
+            ]
+        );
+        // --pretrain-batches goes to the SAVER variants only.
+        let has_batches = |c: &Cell| c.args.iter().any(|f| f == "--pretrain-batches");
+        assert_eq!(
+            c.iter().map(has_batches).collect::<Vec<_>>(),
+            [true, false, true]
+        );
+        assert_eq!(c[2].dir, Path::new("o/fig5/arm-d2-fast-seed7"));
+        let only = cells(
+            &ReproArgs {
+                only_variants: true,
+                ..a
+            },
+            Path::new("o"),
+        );
+        assert_eq!(only.len(), 1);
+    }
 }

@@ -236,6 +236,73 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// `saver repro` on a tiny arm grid with a variant of the user's: every run, the figure,
+/// a table row per series, a manifest naming each SAVER run's PCPN, and a rerun that
+/// finds every run finished.
+#[test]
+fn repro_runs_a_grid_with_a_users_variant_and_says_what_made_it() {
+    let dir = temp_dir("repro");
+    let (out, pcpn) = (dir.join("out"), dir.join("pcpn"));
+    let args = [
+        "repro",
+        "fig5",
+        "--steps",
+        "16384",
+        "--seeds",
+        "0,1",
+        "--no-faithful",
+        "--pretrain-batches",
+        "200",
+        "--jobs",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+        "--pcpn-dir",
+        pcpn.to_str().unwrap(),
+        "--variant",
+        "fast=--algo saver --lr 0.003",
+    ];
+    let o = saver(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    let root = out.join("fig5");
+    let table = std::fs::read_to_string(root.join("table.md")).unwrap();
+    for row in [
+        "| a2c arm-d2 | 2 |",
+        "| saver arm-d2 | 2 |",
+        "| saver (lr 0.003) arm-d2 | 2 |",
+    ] {
+        assert!(table.contains(row), "{row} missing from\n{table}");
+    }
+    assert!(std::fs::read_to_string(root.join("figure.svg"))
+        .unwrap()
+        .starts_with("<svg"));
+    let manifest = std::fs::read_to_string(root.join("manifest.md")).unwrap();
+    assert!(
+        manifest.contains("--variant 'fast=--algo saver --lr 0.003'"),
+        "{manifest}"
+    );
+    // Both SAVER series share the one PCPN of 200 batches; A2C runs name none.
+    let stored: Vec<_> = std::fs::read_dir(&pcpn).unwrap().collect();
+    assert_eq!(stored.len(), 1, "{stored:?}");
+    let pcpn_lines = manifest
+        .lines()
+        .filter(|l| l.contains("PCPN weights sha256"))
+        .count();
+    assert_eq!(pcpn_lines, 4, "{manifest}");
+    assert!(manifest.contains("pretrained 200 batches"), "{manifest}");
+    let a2c = manifest
+        .lines()
+        .find(|l| l.contains("arm-d2-a2c-seed1"))
+        .unwrap();
+    assert!(!a2c.contains("PCPN"), "{a2c}");
+    // Again: nothing left to run.
+    let o = saver(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("6 runs in"), "{}", text(&o));
+    assert!(text(&o).contains("(6 finished already)"), "{}", text(&o));
+    std::fs::remove_dir_all(dir).ok();
+}
+
 /// `saver train | head -0`: the reader is gone before the run prints; the run still
 /// finishes and writes its checkpoint, and nothing panics.
 #[test]
