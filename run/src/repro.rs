@@ -198,7 +198,7 @@ fn manifest(groups: &[figures::Group]) -> Result<String> {
         .ok()
         .filter(|o| o.status.success())
         .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
-        .unwrap_or_else(|| "unknown (not run from a git checkout)".into());
+        .unwrap_or_else(|| "none (not a git checkout)".into());
     let read = |f: &str, key: &str| {
         std::fs::read_to_string(f)
             .ok()
@@ -207,7 +207,7 @@ fn manifest(groups: &[figures::Group]) -> Result<String> {
     };
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
     let mut out = format!(
-        "# How this figure was made\n\n- command: `saver {}`\n- saver {} at commit {commit}\n- machine: {cores} logical CPUs ({}), {} memory\n\n## Groups\n\n",
+        "# How this figure was made\n\n- command: `saver {}`\n- saver {}; git HEAD of the folder it ran from: {commit}\n- machine: {cores} logical CPUs ({}), {} memory\n\n## Groups\n\n",
         command.join(" "),
         env!("CARGO_PKG_VERSION"),
         read("/proc/cpuinfo", "model name").unwrap_or_else(|| "CPU unknown".into()),
@@ -288,6 +288,14 @@ pub fn run(a: ReproArgs) -> Result<()> {
     std::fs::create_dir_all(&root).with_context(|| format!("creating {}", root.display()))?;
     let steps = a.steps.unwrap_or(a.figure.grid().2);
     let all = cells(&a, &root);
+    let mut names: Vec<&str> = all.iter().map(|c| c.name.as_str()).collect();
+    names.sort_unstable();
+    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+        bail!(
+            "two variants would share the run folder {}: give each --variant its own name (built in: saver, saver-faithful, a2c)",
+            w[0]
+        );
+    }
     let (finished, todo): (Vec<&Cell>, Vec<&Cell>) =
         all.iter().partition(|c| done_steps(&c.dir) >= steps);
     eprintln!(

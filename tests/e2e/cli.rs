@@ -295,6 +295,16 @@ fn repro_runs_a_grid_with_a_users_variant_and_says_what_made_it() {
         .find(|l| l.contains("arm-d2-a2c-seed1"))
         .unwrap();
     assert!(!a2c.contains("PCPN"), "{a2c}");
+    // A variant named like a built-in one would share its folders: refused.
+    let mut clash = args.to_vec();
+    clash.extend(["--variant", "a2c=--algo a2c --lr 0.001"]);
+    let o = saver(&clash);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("share the run folder arm-d2-a2c-seed0"),
+        "{}",
+        text(&o)
+    );
     // Again: nothing left to run.
     let o = saver(&args);
     assert!(o.status.success(), "{}", text(&o));
