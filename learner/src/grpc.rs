@@ -429,12 +429,37 @@ impl Learner for LearnerService {
         let mut rx = self.weights.clone();
         let (tx, out) = mpsc::channel(1);
         let hub = self.hub.clone();
+        // A new watcher starts from the hub's newest version even where the bridge
+        // thread has not encoded it yet (on a loaded machine it lags several versions).
+        let newest = hub.latest();
+        let fresh = if newest.version > rx.borrow().version {
+            let about = saver_core::link::weights_metadata(hub.config());
+            blocking(move || encode_weights(&newest, &about))
+                .await?
+                .ok()
+        } else {
+            None
+        };
         tokio::spawn(async move {
+            let mut sent = None;
+            if let Some(e) = fresh {
+                sent = Some(e.version);
+                if tx.send(Ok(Self::weights_reply(&e))).await.is_err() {
+                    return;
+                }
+            }
             loop {
-                // The newest version only: a slow reader skips what it missed.
-                let reply = Self::watch_reply(&rx.borrow_and_update(), by_file);
-                if tx.send(Ok(reply)).await.is_err() {
-                    break;
+                // The newest version only: a slow reader skips what it missed, and
+                // none goes back to a version older than it has.
+                let reply = {
+                    let w = rx.borrow_and_update();
+                    (sent.is_none_or(|s| w.version > s)).then(|| Self::watch_reply(&w, by_file))
+                };
+                if let Some(reply) = reply {
+                    sent = Some(reply.version);
+                    if tx.send(Ok(reply)).await.is_err() {
+                        break;
+                    }
                 }
                 if rx.changed().await.is_err() {
                     // The run ended: say how (finished, or the learner is stopping).
