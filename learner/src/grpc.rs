@@ -429,37 +429,18 @@ impl Learner for LearnerService {
         let mut rx = self.weights.clone();
         let (tx, out) = mpsc::channel(1);
         let hub = self.hub.clone();
-        // A new watcher starts from the hub's newest version even where the bridge
-        // thread has not encoded it yet (on a loaded machine it lags several versions).
-        let newest = hub.latest();
-        let fresh = if newest.version > rx.borrow().version {
-            let about = saver_core::link::weights_metadata(hub.config());
-            blocking(move || encode_weights(&newest, &about))
-                .await?
-                .ok()
-        } else {
-            None
-        };
+        // A new watcher starts from the hub's newest version: on a loaded machine the
+        // bridge thread can be several versions behind it, so wait for the bridge.
+        let newest = hub.latest().version;
         tokio::spawn(async move {
-            let mut sent = None;
-            if let Some(e) = fresh {
-                sent = Some(e.version);
-                if tx.send(Ok(Self::weights_reply(&e))).await.is_err() {
-                    return;
-                }
-            }
+            // An error means the bridge has ended; the loop then sends its last
+            // version and says why the run closed.
+            let _ = rx.wait_for(|w| w.version >= newest).await;
             loop {
-                // The newest version only: a slow reader skips what it missed, and
-                // none goes back to a version older than it has.
-                let reply = {
-                    let w = rx.borrow_and_update();
-                    (sent.is_none_or(|s| w.version > s)).then(|| Self::watch_reply(&w, by_file))
-                };
-                if let Some(reply) = reply {
-                    sent = Some(reply.version);
-                    if tx.send(Ok(reply)).await.is_err() {
-                        break;
-                    }
+                // The newest version only: a slow reader skips what it missed.
+                let reply = Self::watch_reply(&rx.borrow_and_update(), by_file);
+                if tx.send(Ok(reply)).await.is_err() {
+                    break;
                 }
                 if rx.changed().await.is_err() {
                     // The run ended: say how (finished, or the learner is stopping).

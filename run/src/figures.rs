@@ -26,8 +26,18 @@ pub struct Group {
     pub series: String,
     /// The env (one panel per env).
     pub env: String,
-    /// (run folder, curve) per seed.
-    pub runs: Vec<(PathBuf, Vec<(f64, f64)>)>,
+    /// One per seed.
+    pub runs: Vec<Run>,
+}
+
+/// One run folder of a group.
+pub struct Run {
+    /// The folder.
+    pub dir: PathBuf,
+    /// Its config.toml.
+    pub config: RunConfig,
+    /// Its curve (steps, mean length of the last 100 episodes).
+    pub curve: Vec<(f64, f64)>,
 }
 
 /// The run folders grouped by their settings but the seed (and the run's length).
@@ -37,15 +47,18 @@ pub fn group(runs: &[PathBuf]) -> Result<Vec<Group>> {
         let cfg = run.join("config.toml");
         let text =
             std::fs::read_to_string(&cfg).with_context(|| format!("reading {}", cfg.display()))?;
-        let mut c: RunConfig =
+        let config: RunConfig =
             toml::from_str(&text).with_context(|| format!("reading {}", cfg.display()))?;
-        let env = c.env.to_string();
-        let series = format!("{}{}", c.algo.name(), variant(&c));
+        let env = config.env.to_string();
+        let series = format!("{}{}", config.algo.name(), variant(&config));
         let label = format!("{series} {env}");
-        c.seed = 0;
-        c.steps = 0;
-        c.pcpn_sha256 = None;
-        let key = c.to_toml();
+        let key = RunConfig {
+            seed: 0,
+            steps: 0,
+            pcpn_sha256: None,
+            ..config.clone()
+        }
+        .to_toml();
         let curve = read_curve(run)?;
         groups
             .entry(key)
@@ -56,7 +69,11 @@ pub fn group(runs: &[PathBuf]) -> Result<Vec<Group>> {
                 runs: Vec::new(),
             })
             .runs
-            .push((run.clone(), curve));
+            .push(Run {
+                dir: run.clone(),
+                config,
+                curve,
+            });
     }
     let mut out: Vec<Group> = groups.into_values().collect();
     out.sort_by(|a, b| (&a.env, &a.label).cmp(&(&b.env, &b.label)));
@@ -98,7 +115,7 @@ pub fn band(g: &Group) -> Band {
     let end = g
         .runs
         .iter()
-        .map(|(_, c)| c.last().map_or(0.0, |p| p.0))
+        .map(|r| r.curve.last().map_or(0.0, |p| p.0))
         .fold(f64::INFINITY, f64::min);
     if !end.is_finite() || end <= 0.0 {
         return Vec::new();
@@ -106,7 +123,7 @@ pub fn band(g: &Group) -> Band {
     (1..=GRID)
         .filter_map(|i| {
             let x = end * i as f64 / GRID as f64;
-            let ys: Vec<f64> = g.runs.iter().filter_map(|(_, c)| at(c, x)).collect();
+            let ys: Vec<f64> = g.runs.iter().filter_map(|r| at(&r.curve, x)).collect();
             if ys.is_empty() {
                 return None;
             }
@@ -145,7 +162,11 @@ pub fn table(groups: &[Group], steps: &[u64], threshold: f64) -> String {
     for g in groups {
         let mut row = format!("| {} | {} |", g.label, g.runs.len());
         for &s in steps {
-            let v: Vec<f64> = g.runs.iter().filter_map(|(_, c)| at(c, s as f64)).collect();
+            let v: Vec<f64> = g
+                .runs
+                .iter()
+                .filter_map(|r| at(&r.curve, s as f64))
+                .collect();
             row.push_str(&if v.len() == g.runs.len() {
                 let (m, sd) = mean_std(&v);
                 format!(" {m:.1} +/- {sd:.1} |")
@@ -156,7 +177,7 @@ pub fn table(groups: &[Group], steps: &[u64], threshold: f64) -> String {
         let firsts: Vec<Option<f64>> = g
             .runs
             .iter()
-            .map(|(_, c)| c.iter().find(|p| p.1 < threshold).map(|p| p.0))
+            .map(|r| r.curve.iter().find(|p| p.1 < threshold).map(|p| p.0))
             .collect();
         let reached: Vec<f64> = firsts.iter().flatten().copied().collect();
         let never = firsts.len() - reached.len();
@@ -178,7 +199,7 @@ pub fn table(groups: &[Group], steps: &[u64], threshold: f64) -> String {
         let finals: Vec<f64> = g
             .runs
             .iter()
-            .filter_map(|(_, c)| c.last().map(|p| p.1))
+            .filter_map(|r| r.curve.last().map(|p| p.1))
             .collect();
         row.push_str(&if finals.len() < g.runs.len() {
             " - (a seed has fewer than 100 episodes) |\n".to_string()
@@ -352,14 +373,23 @@ mod tests {
     /// (100 + 200)/2 = 150, std 50.
     #[test]
     fn bands_and_tables_by_hand() {
+        let env = saver_core::env::EnvSpec::new(saver_core::env::EnvKind::Angle, 2).unwrap();
         let g = Group {
             label: "a2c angle-d2".into(),
             series: "a2c".into(),
             env: "angle-d2".into(),
-            runs: vec![
-                (PathBuf::from("s0"), vec![(0.0, 100.0), (10.0, 50.0)]),
-                (PathBuf::from("s1"), vec![(0.0, 200.0), (10.0, 30.0)]),
-            ],
+            runs: [
+                vec![(0.0, 100.0), (10.0, 50.0)],
+                vec![(0.0, 200.0), (10.0, 30.0)],
+            ]
+            .into_iter()
+            .enumerate()
+            .map(|(i, curve)| Run {
+                dir: PathBuf::from(format!("s{i}")),
+                config: RunConfig::paper(&env, saver_core::config::Algo::A2c, 10),
+                curve,
+            })
+            .collect(),
         };
         let b = band(&g);
         assert_eq!(b.len(), GRID);

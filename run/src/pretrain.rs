@@ -58,18 +58,11 @@ pub fn run(args: PretrainArgs) -> Result<()> {
 /// Prints what a PCPN is and where it lives.
 pub fn print_info(info: &PcpnInfo) {
     let m = |k: &str| info.meta.get(k).cloned().unwrap_or_else(|| "?".into());
-    let p = &info.pretrain;
     crate::out!(
-        "PCPN for {} in {}\n  pretrained {} batches x {}, K {}, {} lr {}, seed {}, samples {}\n  held-out quantile loss {} (untrained: {})\n  weights sha256 {}",
+        "PCPN for {} in {}\n  pretrained {}\n  held-out quantile loss {} (untrained: {})\n  weights sha256 {}",
         info.spec,
         info.path.display(),
-        p.batches,
-        p.batch_size,
-        p.quantiles,
-        p.optimizer.name(),
-        p.lr,
-        p.seed,
-        p.samples.name(),
+        info.pretrain,
         m("held_out_loss"),
         m("initial_held_out_loss"),
         info.weights_sha256

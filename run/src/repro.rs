@@ -8,7 +8,6 @@ use crate::figures;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use saver_core::config::RunConfig;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -180,7 +179,7 @@ fn cells(a: &ReproArgs, root: &Path) -> Vec<Cell> {
 /// What made a figure: the command, the commit, the machine, and per group its runs
 /// and the PCPN each SAVER run used (weights sha256 and pretraining settings, from its
 /// config.toml).
-fn manifest(groups: &[figures::Group]) -> Result<String> {
+fn manifest(groups: &[figures::Group]) -> String {
     let quote = |a: String| {
         if a.chars()
             .all(|c| c.is_ascii_alphanumeric() || "-_.,/=:".contains(c))
@@ -215,35 +214,20 @@ fn manifest(groups: &[figures::Group]) -> Result<String> {
     );
     for g in groups {
         out += &format!("- **{}**: {} runs\n", g.label, g.runs.len());
-        for (dir, _) in &g.runs {
-            let path = dir.join("config.toml");
-            let text = std::fs::read_to_string(&path)
-                .with_context(|| format!("reading {}", path.display()))?;
-            let c: RunConfig =
-                toml::from_str(&text).with_context(|| format!("reading {}", path.display()))?;
-            let name = dir
+        for r in &g.runs {
+            let c = &r.config;
+            let name = r
+                .dir
                 .file_name()
                 .map_or(String::new(), |n| n.to_string_lossy().into());
             let pcpn = match &c.pcpn_sha256 {
                 None => String::new(),
-                Some(sha) => {
-                    let p = &c.pretrain;
-                    format!(
-                        ": PCPN weights sha256 {sha} (pretrained {} batches x {}, K {}, {} lr {}, seed {}, {} samples)",
-                        p.batches,
-                        p.batch_size,
-                        p.quantiles,
-                        p.optimizer.name(),
-                        p.lr,
-                        p.seed,
-                        p.samples.name()
-                    )
-                }
+                Some(sha) => format!(": PCPN weights sha256 {sha} (pretrained {})", c.pretrain),
             };
             out += &format!("  - `{name}` (seed {}, {} steps){pcpn}\n", c.seed, c.steps);
         }
     }
-    Ok(out)
+    out
 }
 
 /// Whether `saver train` args run SAVER (which needs a PCPN).
@@ -309,17 +293,20 @@ pub fn run(a: ReproArgs) -> Result<()> {
     let exe = std::env::current_exe().context("finding the saver binary")?;
     // The PCPNs first, one at a time (cached ones are found at once), so that runs in
     // parallel never pretrain the same one twice.
-    for c in &todo {
-        if is_saver(&c.args) {
-            let p = pretrain_args(&c.args);
-            let status = Command::new(&exe)
-                .args(&p)
-                .stdout(Stdio::null())
-                .status()
-                .with_context(|| format!("pretraining the PCPN of {}", c.name))?;
-            if !status.success() {
-                bail!("pretraining the PCPN of {} failed ({status})", c.name);
-            }
+    // Each distinct PCPN once (the seeds of a series share theirs).
+    let mut asked = std::collections::HashSet::new();
+    for c in todo.iter().filter(|c| is_saver(&c.args)) {
+        let p = pretrain_args(&c.args);
+        if !asked.insert(p.clone()) {
+            continue;
+        }
+        let status = Command::new(&exe)
+            .args(&p)
+            .stdout(Stdio::null())
+            .status()
+            .with_context(|| format!("pretraining the PCPN of {}", c.name))?;
+        if !status.success() {
+            bail!("pretraining the PCPN of {} failed ({status})", c.name);
         }
     }
     let bar = ProgressBar::new(all.len() as u64);
@@ -387,7 +374,7 @@ pub fn run(a: ReproArgs) -> Result<()> {
         figures::draw(&groups, &root.join(format!("figure.{ext}")))?;
     }
     std::fs::write(root.join("table.md"), &table)?;
-    std::fs::write(root.join("manifest.md"), manifest(&groups)?)?;
+    std::fs::write(root.join("manifest.md"), manifest(&groups))?;
     crate::out!("{table}");
     crate::out!(
         "figure: {} (and .svg); table: {}; command, commit, machine and PCPNs: {}",

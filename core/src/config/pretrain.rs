@@ -62,6 +62,24 @@ pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
     }
 }
 
+/// "5000 batches x 128, K 32, rmsprop lr 0.001, seed 0, reset samples": what a PCPN's
+/// pretraining was, in one line (`saver pretrain`, `saver repro`'s manifest).
+impl std::fmt::Display for PretrainConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} batches x {}, K {}, {} lr {}, seed {}, {} samples",
+            self.batches,
+            self.batch_size,
+            self.quantiles,
+            self.optimizer.name(),
+            self.lr,
+            self.seed,
+            self.samples.name()
+        )
+    }
+}
+
 impl PretrainConfig {
     /// The paper's: TF1 RMSProp at 0.1 × the paper's SAVER rate, the paper's number of
     /// batches of 128, K = 32.
