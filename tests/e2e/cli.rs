@@ -218,8 +218,8 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
         config
     );
     // `saver plot` groups runs of the same settings (seeds apart) into one band, as SVG
-    // too, with its table beside it.
-    let svg = dir.join("curves.svg");
+    // too, with its table beside it, into a folder it makes.
+    let svg = dir.join("figures/new/curves.svg");
     let o = saver(&[
         "plot",
         run.to_str().unwrap(),
@@ -231,7 +231,7 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
     ]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(std::fs::read_to_string(&svg).unwrap().starts_with("<svg"));
-    let md = std::fs::read_to_string(dir.join("curves.md")).unwrap();
+    let md = std::fs::read_to_string(dir.join("figures/new/curves.md")).unwrap();
     assert!(md.contains("| a2c angle-d4 | 2 |"), "{md}");
     std::fs::remove_dir_all(dir).ok();
 }
