@@ -8,7 +8,7 @@ use crate::plot::{read_curve, register_font};
 use anyhow::{bail, Context, Result};
 use plotters::coord::Shift;
 use plotters::prelude::*;
-use saver_core::config::{Algo, RunConfig};
+use saver_core::config::RunConfig;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -41,7 +41,7 @@ pub struct Run {
 }
 
 /// The run folders grouped by their settings but the seed (and the run's length),
-/// each labelled with what sets it apart ([`variant`]).
+/// each labelled with what sets it apart ([`crate::labels::series`]).
 pub fn group(runs: &[PathBuf]) -> Result<Vec<Group>> {
     let mut groups: BTreeMap<String, Vec<Run>> = BTreeMap::new();
     for run in runs {
@@ -64,39 +64,13 @@ pub fn group(runs: &[PathBuf]) -> Result<Vec<Group>> {
             curve,
         });
     }
-    let changed: Vec<Vec<(String, String)>> =
-        groups.values().map(|r| variant(&r[0].config)).collect();
-    let algos: Vec<Algo> = groups.values().map(|r| r[0].config.algo).collect();
+    let configs: Vec<&RunConfig> = groups.values().map(|r| &r[0].config).collect();
+    let names = crate::labels::series(&configs);
     let mut out: Vec<Group> = groups
         .into_values()
-        .enumerate()
-        .map(|(i, runs)| {
-            let c = &runs[0].config;
-            // A change every other group shares too (e.g. `saver repro
-            // --pretrain-batches 200`) does not set this group apart.
-            let own: Vec<String> = changed[i]
-                .iter()
-                .filter(|pair| {
-                    algos.len() == 1
-                        || !(0..algos.len()).all(|j| {
-                            changed[j].contains(pair)
-                                || (pair.0.starts_with("pretrain.") && algos[j] != Algo::Saver)
-                        })
-                })
-                .map(|(k, v)| {
-                    if v.is_empty() {
-                        k.clone()
-                    } else {
-                        format!("{k} {v}")
-                    }
-                })
-                .collect();
-            let series = if own.is_empty() {
-                c.algo.name().to_string()
-            } else {
-                format!("{} ({})", c.algo.name(), own.join(", "))
-            };
-            let env = c.env.to_string();
+        .zip(names)
+        .map(|(runs, series)| {
+            let env = runs[0].config.env.to_string();
             Group {
                 label: format!("{series} {env}"),
                 series,
@@ -114,57 +88,6 @@ pub fn group(runs: &[PathBuf]) -> Result<Vec<Group>> {
         }
     }
     Ok(out)
-}
-
-/// What sets a config apart from its algorithm's default: every setting that differs
-/// from the settings the run started from (the paper's for a `--faithful` SAVER run,
-/// the default otherwise), as (config.toml name, value), and ("faithful", "") for a
-/// faithful run. The pretraining settings count for SAVER only (the one algorithm
-/// with a PCPN).
-fn variant(c: &RunConfig) -> Vec<(String, String)> {
-    let def = RunConfig::recommended(&c.env, c.algo, c.steps);
-    let paper = RunConfig::paper(&c.env, c.algo, c.steps);
-    let faithful = c.algo == Algo::Saver && c.head == paper.head && c.optimizer == paper.optimizer;
-    let base = settings(if faithful { &paper } else { &def });
-    let mut parts: Vec<(String, String)> = settings(c)
-        .into_iter()
-        .filter(|(k, _)| !matches!(k.as_str(), "seed" | "steps" | "pcpn_sha256"))
-        .filter(|(k, _)| c.algo == Algo::Saver || !k.starts_with("pretrain."))
-        .filter(|(k, v)| base.get(k) != Some(v))
-        .collect();
-    if faithful {
-        parts.push(("faithful".to_string(), String::new()));
-    }
-    parts
-}
-
-/// A config's settings by their dotted config.toml names, each value as TOML writes it.
-fn settings(c: &RunConfig) -> BTreeMap<String, String> {
-    fn walk(prefix: &str, v: &toml::Value, out: &mut BTreeMap<String, String>) {
-        match v {
-            toml::Value::Table(t) => {
-                for (k, v) in t {
-                    let name = if prefix.is_empty() {
-                        k.clone()
-                    } else {
-                        format!("{prefix}.{k}")
-                    };
-                    walk(&name, v, out);
-                }
-            }
-            toml::Value::String(s) => {
-                out.insert(prefix.to_string(), s.clone());
-            }
-            other => {
-                out.insert(prefix.to_string(), other.to_string());
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    if let Ok(v) = toml::Value::try_from(c) {
-        walk("", &v, &mut out);
-    }
-    out
 }
 
 /// The group's mean and standard deviation over seeds on a step grid up to the
@@ -428,38 +351,6 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A run's label names every setting it changed, and nothing for the default.
-    #[test]
-    fn variants_name_every_changed_setting() {
-        let env = saver_core::env::EnvSpec::new(saver_core::env::EnvKind::Angle, 16).unwrap();
-        let def = RunConfig::recommended(&env, Algo::Saver, 100);
-        let words = |c: &RunConfig| {
-            variant(c)
-                .iter()
-                .map(|(k, v)| format!("{k} {v}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        assert_eq!(words(&def), "");
-        let mut c = RunConfig {
-            seed: 3,
-            steps: 7,
-            ..def.clone()
-        };
-        assert_eq!(words(&c), "", "seed and steps are not a variant");
-        c.head.log_std_bounds = Some((-1.6, 0.0));
-        c.pretrain.batches = 100_000;
-        assert_eq!(words(&c), "head.log_std_min -1.6, pretrain.batches 100000");
-        let paper = RunConfig::paper(&env, Algo::Saver, 100);
-        assert_eq!(words(&paper), "faithful ");
-        let slow = RunConfig { lr: 3e-4, ..paper };
-        assert_eq!(words(&slow), "lr 0.0003, faithful ");
-        // A2C has no PCPN: its pretraining settings are not a variant.
-        let mut a2c = RunConfig::recommended(&env, Algo::A2c, 100);
-        a2c.pretrain.batches = 200;
-        assert_eq!(words(&a2c), "");
-    }
 
     /// Two seeds: (0, 100), (10, 50) and (0, 200), (10, 30). On the grid up to step 10
     /// the mean at step 10 is (50 + 30)/2 = 40 with std 10; before step 10 the mean is

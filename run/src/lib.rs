@@ -13,6 +13,7 @@ pub mod diagnose;
 pub mod eval;
 pub mod figures;
 pub mod histogram;
+pub mod labels;
 pub mod output;
 pub mod pcpn_gradients;
 pub mod plot;
