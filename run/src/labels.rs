@@ -99,7 +99,7 @@ mod tests {
     /// A run's label names every setting it changed, and nothing for the default.
     #[test]
     fn variants_name_every_changed_setting() {
-        let env = saver_core::env::EnvSpec::new(saver_core::env::EnvKind::Angle, 16).unwrap();
+        let env = saver_core::env::EnvSpec::new(saver_core::env::EnvKind::Angle, 4).unwrap();
         let def = RunConfig::recommended(&env, Algo::Saver, 100);
         let words = |c: &RunConfig| {
             variant(c)

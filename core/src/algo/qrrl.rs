@@ -118,7 +118,7 @@ impl Qrrl {
             layout,
             gamma: config.gamma as f32,
             bootstrap_timeout: config.bootstrap_timeout,
-            cfg: config.saver,
+            cfg: config.saver.clone(),
             path: GradPath::for_device(dev),
             threads: 0,
             dev: dev.clone(),

@@ -96,9 +96,16 @@ pub fn tau_tensors(
     ))
 }
 
-/// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim]: a wall
-/// that keeps a tanh-bounded mean where tanh still passes gradient back.
-pub fn mu_raw_penalty(raw: &Tensor, w: f64) -> Result<Tensor> {
+/// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim], the sum
+/// over `entries` only unless empty: a wall that keeps a tanh-bounded mean where tanh
+/// still passes gradient back.
+pub fn mu_raw_penalty(raw: &Tensor, w: f64, entries: &[usize]) -> Result<Tensor> {
+    let raw = if entries.is_empty() {
+        raw.clone()
+    } else {
+        let idx: Vec<u32> = entries.iter().map(|&e| e as u32).collect();
+        raw.index_select(&Tensor::new(idx.as_slice(), raw.device())?, 1)?
+    };
     let over = (raw.abs()? - MU_RAW_LIMIT)?.relu()?;
     Ok((over.sqr()?.sum_all()? * (w / raw.dim(0)? as f64))?)
 }
@@ -135,7 +142,7 @@ impl Saver {
             layout,
             gamma: config.gamma as f32,
             bootstrap_timeout: config.bootstrap_timeout,
-            cfg: config.saver,
+            cfg: config.saver.clone(),
             mu_bound: config.head.mu_bound,
             dev: dev.clone(),
         })
@@ -214,7 +221,8 @@ impl Algorithm for Saver {
         let mut loss = (agent_loss + &critic_loss)?;
         if self.cfg.mu_raw_penalty > 0.0 {
             let raw = out.mu_raw.narrow(0, 0, b)?;
-            loss = (loss + mu_raw_penalty(&raw, self.cfg.mu_raw_penalty)?)?;
+            let (w, entries) = (self.cfg.mu_raw_penalty, &self.cfg.mu_raw_penalty_entries);
+            loss = (loss + mu_raw_penalty(&raw, w, entries)?)?;
         }
         // Checked before the step: a non-finite loss changes nothing.
         let actor = check_finite("actor_loss", actor)?;

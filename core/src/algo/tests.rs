@@ -434,19 +434,27 @@ fn mu_raw_penalty_is_a_quadratic_wall_beyond_the_limit() {
     // raw = [[3, -0.5], [-2.5, 1]], limit 2: over = [[1, 0], [0.5, 0]];
     // w = 0.1, B = 2: 0.1 · (1 + 0.25) / 2 = 0.0625.
     // d/draw = 2·w·over·sign(raw)/B = [[0.1, 0], [-0.05, 0]].
+    // On entry 0 alone the same; on entry 1 alone (-0.5 and 1, inside ±2) 0 and no
+    // gradient anywhere.
     let raw = Var::from_slice(&[3f32, -0.5, -2.5, 1.0], (2, 2), &Device::Cpu).unwrap();
-    let p = super::saver::mu_raw_penalty(raw.as_tensor(), 0.1).unwrap();
-    assert!((p.to_scalar::<f32>().unwrap() - 0.0625).abs() < 1e-7);
-    let g = p.backward().unwrap();
-    let g: Vec<f32> = g
-        .get(raw.as_tensor())
-        .unwrap()
-        .flatten_all()
-        .unwrap()
-        .to_vec1()
-        .unwrap();
-    for (got, want) in g.iter().zip([0.1f32, 0.0, -0.05, 0.0]) {
-        assert!((got - want).abs() < 1e-7, "{g:?}");
+    for (entries, want_p, want_g) in [
+        (vec![], 0.0625, [0.1f32, 0.0, -0.05, 0.0]),
+        (vec![0], 0.0625, [0.1, 0.0, -0.05, 0.0]),
+        (vec![1], 0.0, [0.0; 4]),
+    ] {
+        let p = super::saver::mu_raw_penalty(raw.as_tensor(), 0.1, &entries).unwrap();
+        assert!(
+            (p.to_scalar::<f32>().unwrap() - want_p).abs() < 1e-7,
+            "{entries:?}"
+        );
+        let grads = p.backward().unwrap();
+        let g: Vec<f32> = match grads.get(raw.as_tensor()) {
+            Some(g) => g.flatten_all().unwrap().to_vec1().unwrap(),
+            None => vec![0.0; 4],
+        };
+        for (got, want) in g.iter().zip(want_g) {
+            assert!((got - want).abs() < 1e-7, "{entries:?}: {g:?}");
+        }
     }
 }
 
@@ -460,6 +468,7 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         adv_norm: false,
         adv_norm_joint: false,
         mu_raw_penalty: 0.0,
+        mu_raw_penalty_entries: Vec::new(),
         qrrl_spread: 0.0,
         qrrl_vector: false,
     }

@@ -13,13 +13,13 @@ pub use pretrain::{
 };
 pub(crate) use unbounded::{inf_is_none, neg_inf_is_none, zero_is_none};
 
-use crate::env::EnvSpec;
+use crate::env::{EnvKind, EnvSpec};
 use crate::nets::HeadConfig;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 
 /// SAVER's loss constants.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SaverConfig {
     /// K: quantile copies per transition.
@@ -46,6 +46,12 @@ pub struct SaverConfig {
     /// angle that freezes a pair's direction at 0 or π, so one of its coordinates can
     /// no longer move. 0: off (the paper).
     pub mu_raw_penalty: f64,
+    /// The mean entries (0-based) [`Self::mu_raw_penalty`] applies to; empty: all. On
+    /// angle the odd entries are the pairs' angles, whose bounds are the poles that
+    /// trap a pair, while the even ones (step sizes) belong at their bounds far from
+    /// the goal.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub mu_raw_penalty_entries: Vec<usize>,
     /// Standalone QRRL: half-width s of the fixed base quantile function s·(2τ − 1)
     /// added to the policy network's output, so that the initial policy is U(−s, s)
     /// (the network starts near 0 everywhere, which would not explore). Not used by
@@ -135,6 +141,19 @@ pub const RECOMMENDED_QRRL_LR: f64 = 1e-3;
 pub const RECOMMENDED_CUSTOM_A2C_LR: f64 = 1e-3;
 /// PCPN pretraining batches by default (the paper's: 100,000 for angle).
 pub const RECOMMENDED_PRETRAIN_BATCHES: u64 = 5_000;
+/// From this dimension on, SAVER's default on the angle env is
+/// [`HIGH_DIM_PRETRAIN_BATCHES`] and [`HIGH_DIM_LOG_STD_MIN`] (issue 19,
+/// results/README.md): with the 5,000-batch PCPN and σ free to fall, the angle entry
+/// of a pair sinks to its pole (the pair then moves along one axis) and d = 8 and 16
+/// lose what they learned.
+pub const HIGH_DIM_ANGLE: usize = 8;
+/// Pretraining batches of SAVER's default on angle from [`HIGH_DIM_ANGLE`] on: the
+/// paper's 100,000 (its PCPN's gradient is the only signal; 3,000 → 100,000 batches
+/// take its in-pair cosine at d = 16 from 0.67 to 0.83, `saver diagnose pcpn`).
+pub const HIGH_DIM_PRETRAIN_BATCHES: u64 = 100_000;
+/// The floor on log σ of SAVER's default on angle from [`HIGH_DIM_ANGLE`] on (σ ≥ 0.2:
+/// a pair at its pole gets out in proportion to σ, `bench/angle_pole.py`).
+pub const HIGH_DIM_LOG_STD_MIN: f64 = -1.6;
 /// Async mode's policy lag unless set.
 pub const DEFAULT_MAX_LAG: u64 = 4;
 
@@ -172,6 +191,7 @@ impl RunConfig {
                 adv_norm: false,
                 adv_norm_joint: false,
                 mu_raw_penalty: 0.0,
+                mu_raw_penalty_entries: Vec::new(),
                 qrrl_spread: QRRL_SPREAD,
                 qrrl_vector: false,
             },
@@ -207,6 +227,10 @@ impl RunConfig {
             c.head = HeadConfig::IN_PCPN_DOMAIN;
             c.saver.adv_norm = true;
             c.saver.adv_norm_joint = true;
+            if env.kind() == Some(EnvKind::Angle) && env.dim() >= HIGH_DIM_ANGLE {
+                c.pretrain.batches = HIGH_DIM_PRETRAIN_BATCHES;
+                c.head.log_std_bounds = Some((HIGH_DIM_LOG_STD_MIN, 0.0));
+            }
         }
         if algo == Algo::A2c && env.kind().is_none() {
             c.head = HeadConfig::IN_PCPN_DOMAIN;
@@ -303,6 +327,25 @@ impl RunConfig {
                 return bad(field, format!("{v} must be finite and >= 0"));
             }
         }
+        if !s.mu_raw_penalty_entries.is_empty() {
+            let n = self.env.layout().mu_dim();
+            let field = "saver.mu_raw_penalty_entries";
+            if s.mu_raw_penalty == 0.0 {
+                return bad(field, "set without saver.mu_raw_penalty (> 0)".into());
+            }
+            if let Some(e) = s.mu_raw_penalty_entries.iter().find(|&&e| e >= n) {
+                return bad(
+                    field,
+                    format!("entry {e}: {} has {n} mean entries (0..{n})", self.env),
+                );
+            }
+            let mut seen = s.mu_raw_penalty_entries.clone();
+            seen.sort_unstable();
+            seen.dedup();
+            if seen.len() != s.mu_raw_penalty_entries.len() {
+                return bad(field, "an entry is listed twice".into());
+            }
+        }
         self.pretrain.validate()?;
         self.pretrain.check_env(&self.env)?;
         if let Some(n) = self.env.kind().and_then(|k| k.fixed_episode_steps()) {
@@ -370,7 +413,6 @@ impl RunConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::env::EnvKind;
 
     #[test]
     fn paper_defaults_validate_and_bad_fields_are_named() {
@@ -389,10 +431,47 @@ mod tests {
         let mut c = ok.clone();
         c.max_lag = Some(2);
         assert!(c.validate().unwrap_err().to_string().contains("max_lag"));
+        let mut c = RunConfig::recommended(&env, Algo::Saver, 1000);
+        c.saver.mu_raw_penalty_entries = vec![1, 3];
+        assert!(c.validate().unwrap_err().to_string().contains("without"));
+        c.saver.mu_raw_penalty = 0.1;
+        c.validate().unwrap();
+        c.saver.mu_raw_penalty_entries = vec![1, 4];
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("entry 4: angle-d4 has 4 mean entries"), "{e}");
+        c.saver.mu_raw_penalty_entries = vec![3, 3];
+        assert!(c.validate().unwrap_err().to_string().contains("twice"));
         assert!(EnvSpec::new(EnvKind::Angle, 3)
             .unwrap_err()
             .to_string()
             .contains("even"));
+    }
+
+    /// SAVER's default on angle takes the paper's pretraining and a σ floor from
+    /// d = 8 on, and nowhere else (d = 4, select, arm and A2C keep theirs).
+    #[test]
+    fn saver_on_high_dim_angle_defaults_to_the_long_pcpn_and_a_sigma_floor() {
+        let cfg = |kind, d, algo| RunConfig::recommended(&EnvSpec::new(kind, d).unwrap(), algo, 1);
+        for d in [8, 16] {
+            let c = cfg(EnvKind::Angle, d, Algo::Saver);
+            assert_eq!(c.pretrain.batches, 100_000);
+            assert_eq!(c.head.log_std_bounds, Some((-1.6, 0.0)));
+            c.validate().unwrap();
+        }
+        let low = cfg(EnvKind::Angle, 4, Algo::Saver);
+        assert_eq!(low.pretrain.batches, RECOMMENDED_PRETRAIN_BATCHES);
+        assert_eq!(low.head.log_std_bounds, Some((-4.6, 0.0)));
+        for c in [
+            cfg(EnvKind::Angle, 16, Algo::A2c),
+            cfg(EnvKind::Select, 6, Algo::Saver),
+        ] {
+            assert_ne!(
+                c.head.log_std_bounds.map(|b| b.0),
+                Some(-1.6),
+                "{:?}",
+                c.env
+            );
+        }
     }
 
     /// Every field survives TOML and JSON, the unbounded ones (inf, κ = 0) included.

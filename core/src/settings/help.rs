@@ -12,6 +12,8 @@ struct Defaults {
     angle: Vec<(&'static str, toml::Table)>,
     /// The same on select and arm.
     others: Vec<toml::Table>,
+    /// SAVER's default on angle d = 16 (it differs from d = 8 on).
+    high_dim: toml::Table,
 }
 
 fn defaults() -> &'static Defaults {
@@ -31,7 +33,9 @@ fn defaults() -> &'static Defaults {
         let angle = tables(EnvKind::Angle, 4);
         let mut others = tables(EnvKind::Select, 4);
         others.extend(tables(EnvKind::Arm, 2));
+        let high_dim = tables(EnvKind::Angle, 16).swap_remove(1);
         Defaults {
+            high_dim,
             angle: ["a2c", "saver", "--faithful saver"]
                 .into_iter()
                 .zip(angle)
@@ -85,6 +89,13 @@ pub fn help(text: &str, path: &str) -> String {
     if varies {
         out.push_str(" (on angle; select and arm: docs/ALGORITHM.md)");
     }
+    let high = on_angle(&d.high_dim);
+    if high != values[1].1 {
+        out.push_str(&format!(
+            " (saver on angle d >= {}: {high})",
+            crate::config::HIGH_DIM_ANGLE
+        ));
+    }
     out
 }
 
@@ -100,6 +111,11 @@ mod tests {
              (on angle; select and arm: docs/ALGORITHM.md)"
         );
         assert_eq!(help("Discount γ", "gamma"), "Discount γ [default: 0.99]");
+        assert_eq!(
+            help("Floor", "head.log_std_min"),
+            "Floor [default: a2c -inf, saver -4.6, --faithful saver -inf] \
+             (saver on angle d >= 8: -1.6)"
+        );
         assert_eq!(
             help("Bound", "head.mu_bound"),
             "Bound [default: a2c inf, saver 1.0, --faithful saver inf]"
