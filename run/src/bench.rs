@@ -212,7 +212,8 @@ fn time_update(algo: Algo, d: usize, seconds: f64, threads: usize) -> Result<(f6
     let dev = Device::Cpu;
     let spec = EnvSpec::new(EnvKind::Angle, d)?;
     let config = RunConfig::recommended(&spec, algo, 1);
-    let pcpn = (algo == Algo::Saver)
+    let pcpn = algo
+        .has_pcpn()
         .then(|| random_pcpn(&spec, &dev))
         .transpose()?;
     let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
@@ -303,7 +304,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         let spec = EnvSpec::new(EnvKind::Angle, d)?;
         let mut config = RunConfig::recommended(&spec, algo, 0);
         config.steps = args.cycle_updates * config.batch_transitions();
-        let pcpn = (algo == Algo::Saver)
+        let pcpn = algo
+            .has_pcpn()
             .then(|| random_pcpn(&spec, &dev))
             .transpose()?;
         let run_dir = out.join(format!("{}-d{d}", algo.name()));

@@ -40,7 +40,8 @@ pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64, Opti
         algo.name(),
         std::process::id()
     ));
-    let pcpn = (algo == Algo::Saver)
+    let pcpn = algo
+        .has_pcpn()
         .then(|| crate::bench::random_pcpn(&spec, &candle_core::Device::Cpu))
         .transpose()?;
     let emb = train_with(

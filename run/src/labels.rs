@@ -2,20 +2,26 @@
 //! setting that sets it apart from the settings the run started from.
 
 use saver_core::config::{Algo, RunConfig};
-use std::collections::BTreeMap;
+use saver_core::settings::dotted;
+
+/// Whether setting `key` counts for `algo`: pretraining only for an algorithm with a
+/// PCPN.
+fn counts(algo: Algo, key: &str) -> bool {
+    algo.has_pcpn() || !key.starts_with("pretrain.")
+}
 
 /// Each config's series name: its algorithm and, in brackets, the settings it changed
 /// ([`variant`]) but those every other config changed too (e.g. `saver repro
-/// --pretrain-batches 200` changes every SAVER run alike; pretraining does not count
-/// for an algorithm without a PCPN). A lone config keeps all its changes.
+/// --pretrain-batches 200` changes every SAVER run alike) or for which that setting
+/// does not count. A lone config keeps all its changes.
 pub fn series(configs: &[&RunConfig]) -> Vec<String> {
     let changed: Vec<Vec<(String, String)>> = configs.iter().map(|c| variant(c)).collect();
     let shared = |pair: &(String, String)| {
         configs.len() > 1
-            && (0..configs.len()).all(|j| {
-                changed[j].contains(pair)
-                    || (pair.0.starts_with("pretrain.") && configs[j].algo != Algo::Saver)
-            })
+            && configs
+                .iter()
+                .zip(&changed)
+                .all(|(c, ch)| ch.contains(pair) || !counts(c.algo, &pair.0))
     };
     configs
         .iter()
@@ -44,52 +50,22 @@ pub fn series(configs: &[&RunConfig]) -> Vec<String> {
 /// What sets a config apart from its algorithm's default: every setting that differs
 /// from the settings the run started from (the paper's for a `--faithful` SAVER run,
 /// the default otherwise), as (config.toml name, value), and ("faithful", "") for a
-/// faithful run. The pretraining settings count for SAVER only (the one algorithm
-/// with a PCPN).
+/// faithful run; settings that do not count for its algorithm ([`counts`]) left out.
 fn variant(c: &RunConfig) -> Vec<(String, String)> {
     let def = RunConfig::recommended(&c.env, c.algo, c.steps);
     let paper = RunConfig::paper(&c.env, c.algo, c.steps);
     let faithful = c.algo == Algo::Saver && c.head == paper.head && c.optimizer == paper.optimizer;
-    let base = settings(if faithful { &paper } else { &def });
-    let mut parts: Vec<(String, String)> = settings(c)
+    let base = dotted(if faithful { &paper } else { &def });
+    let mut parts: Vec<(String, String)> = dotted(c)
         .into_iter()
         .filter(|(k, _)| !matches!(k.as_str(), "seed" | "steps" | "pcpn_sha256"))
-        .filter(|(k, _)| c.algo == Algo::Saver || !k.starts_with("pretrain."))
+        .filter(|(k, _)| counts(c.algo, k))
         .filter(|(k, v)| base.get(k) != Some(v))
         .collect();
     if faithful {
         parts.push(("faithful".to_string(), String::new()));
     }
     parts
-}
-
-/// A config's settings by their dotted config.toml names, each value as TOML writes it.
-fn settings(c: &RunConfig) -> BTreeMap<String, String> {
-    fn walk(prefix: &str, v: &toml::Value, out: &mut BTreeMap<String, String>) {
-        match v {
-            toml::Value::Table(t) => {
-                for (k, v) in t {
-                    let name = if prefix.is_empty() {
-                        k.clone()
-                    } else {
-                        format!("{prefix}.{k}")
-                    };
-                    walk(&name, v, out);
-                }
-            }
-            toml::Value::String(s) => {
-                out.insert(prefix.to_string(), s.clone());
-            }
-            other => {
-                out.insert(prefix.to_string(), other.to_string());
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    if let Ok(v) = toml::Value::try_from(c) {
-        walk("", &v, &mut out);
-    }
-    out
 }
 
 #[cfg(test)]

@@ -35,6 +35,11 @@ impl Algo {
             Self::Qrrl => "qrrl",
         }
     }
+    /// Whether it learns through a frozen PCPN (and so has pretraining settings that
+    /// matter): SAVER only.
+    pub fn has_pcpn(self) -> bool {
+        self == Self::Saver
+    }
 }
 
 /// How the learner forms batches.

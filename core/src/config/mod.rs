@@ -229,7 +229,10 @@ impl RunConfig {
             c.saver.adv_norm_joint = true;
             if env.kind() == Some(EnvKind::Angle) && env.dim() >= HIGH_DIM_ANGLE {
                 c.pretrain.batches = HIGH_DIM_PRETRAIN_BATCHES;
-                c.head.log_std_bounds = Some((HIGH_DIM_LOG_STD_MIN, 0.0));
+                c.head.log_std_bounds = c
+                    .head
+                    .log_std_bounds
+                    .map(|(_, max)| (HIGH_DIM_LOG_STD_MIN, max));
             }
         }
         if algo == Algo::A2c && env.kind().is_none() {
@@ -339,10 +342,8 @@ impl RunConfig {
                     format!("entry {e}: {} has {n} mean entries (0..{n})", self.env),
                 );
             }
-            let mut seen = s.mu_raw_penalty_entries.clone();
-            seen.sort_unstable();
-            seen.dedup();
-            if seen.len() != s.mu_raw_penalty_entries.len() {
+            let unique: std::collections::BTreeSet<_> = s.mu_raw_penalty_entries.iter().collect();
+            if unique.len() != s.mu_raw_penalty_entries.len() {
                 return bad(field, "an entry is listed twice".into());
             }
         }
@@ -374,7 +375,7 @@ impl RunConfig {
                 ),
             );
         }
-        if self.algo != Algo::Saver && self.pcpn_sha256.is_some() {
+        if !self.algo.has_pcpn() && self.pcpn_sha256.is_some() {
             return bad(
                 "pcpn_sha256",
                 format!("{} runs use no PCPN", self.algo.name()),

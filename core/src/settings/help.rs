@@ -1,39 +1,48 @@
 //! `--help` text that shows each setting's real default per algorithm, read from the
 //! default configs themselves (so it cannot drift from them).
 
-use super::{table_of, DEFAULT_STEPS};
-use crate::config::{Algo, RunConfig};
+use super::{dotted, DEFAULT_STEPS};
+use crate::config::{Algo, RunConfig, HIGH_DIM_ANGLE};
 use crate::env::{EnvKind, EnvSpec};
+use std::collections::BTreeMap;
 use std::sync::OnceLock;
+
+/// A config's settings by dotted name ([`dotted`]).
+type Settings = BTreeMap<String, String>;
 
 /// The defaults of one setting, read from the configs they come from.
 struct Defaults {
     /// (label, config) pairs: a2c and saver defaults, the paper's saver; on angle d=4.
-    angle: Vec<(&'static str, toml::Table)>,
+    angle: Vec<(&'static str, Settings)>,
     /// The same on select and arm.
-    others: Vec<toml::Table>,
-    /// SAVER's default on angle d = 16 (it differs from d = 8 on).
-    high_dim: toml::Table,
+    others: Vec<Settings>,
+    /// SAVER's default on angle from [`HIGH_DIM_ANGLE`] on.
+    high_dim: Settings,
 }
 
 fn defaults() -> &'static Defaults {
     static D: OnceLock<Defaults> = OnceLock::new();
     D.get_or_init(|| {
-        let tables = |kind: EnvKind, dim: usize| -> Vec<toml::Table> {
-            let env = EnvSpec::new(kind, dim).expect("a preset");
+        let preset = |kind: EnvKind, dim: usize| EnvSpec::new(kind, dim).expect("a preset");
+        let tables = |kind: EnvKind, dim: usize| -> Vec<Settings> {
+            let env = preset(kind, dim);
             [
                 RunConfig::recommended(&env, Algo::A2c, DEFAULT_STEPS),
                 RunConfig::recommended(&env, Algo::Saver, DEFAULT_STEPS),
                 RunConfig::paper(&env, Algo::Saver, DEFAULT_STEPS),
             ]
             .iter()
-            .map(|c| table_of(c).unwrap_or_default())
+            .map(dotted)
             .collect()
         };
         let angle = tables(EnvKind::Angle, 4);
         let mut others = tables(EnvKind::Select, 4);
         others.extend(tables(EnvKind::Arm, 2));
-        let high_dim = tables(EnvKind::Angle, 16).swap_remove(1);
+        let high_dim = dotted(&RunConfig::recommended(
+            &preset(EnvKind::Angle, HIGH_DIM_ANGLE),
+            Algo::Saver,
+            DEFAULT_STEPS,
+        ));
         Defaults {
             high_dim,
             angle: ["a2c", "saver", "--faithful saver"]
@@ -45,21 +54,9 @@ fn defaults() -> &'static Defaults {
     })
 }
 
-fn lookup<'a>(table: &'a toml::Table, path: &str) -> Option<&'a toml::Value> {
-    let mut parts = path.split('.');
-    let mut v = table.get(parts.next()?)?;
-    for p in parts {
-        v = v.as_table()?.get(p)?;
-    }
-    Some(v)
-}
-
-fn shown(v: Option<&toml::Value>) -> String {
-    match v {
-        Some(toml::Value::String(s)) => s.clone(),
-        Some(v) => v.to_string(),
-        None => "none".into(),
-    }
+/// A setting's value in `settings`, as the file writes it ("none" where it has none).
+fn shown(settings: &Settings, path: &str) -> String {
+    settings.get(path).cloned().unwrap_or_else(|| "none".into())
 }
 
 /// `text` followed by the setting's real defaults, from the default configs
@@ -69,7 +66,7 @@ pub fn help(text: &str, path: &str) -> String {
     let values: Vec<(&str, String)> = d
         .angle
         .iter()
-        .map(|(label, t)| (*label, shown(lookup(t, path))))
+        .map(|(label, t)| (*label, shown(t, path)))
         .collect();
     let first = &values[0].1;
     let mut out = if values.iter().all(|(_, v)| v == first) {
@@ -80,7 +77,7 @@ pub fn help(text: &str, path: &str) -> String {
         let parts: Vec<String> = values.iter().map(|(l, v)| format!("{l} {v}")).collect();
         format!("{text} [default: {}]", parts.join(", "))
     };
-    let on_angle = |t: &toml::Table| shown(lookup(t, path));
+    let on_angle = |t: &Settings| shown(t, path);
     let varies = d
         .others
         .iter()
@@ -91,10 +88,7 @@ pub fn help(text: &str, path: &str) -> String {
     }
     let high = on_angle(&d.high_dim);
     if high != values[1].1 {
-        out.push_str(&format!(
-            " (saver on angle d >= {}: {high})",
-            crate::config::HIGH_DIM_ANGLE
-        ));
+        out.push_str(&format!(" (saver on angle d >= {HIGH_DIM_ANGLE}: {high})"));
     }
     out
 }

@@ -235,6 +235,33 @@ fn table_of<T: Serialize>(v: &T) -> Result<toml::Table> {
     toml::Table::try_from(v).map_err(config_err)
 }
 
+/// A config's settings by their dotted config.toml names (`head.log_std_min`), each
+/// value as the file writes it (strings without quotes): what `--help` shows as a
+/// default and `saver plot` compares to name what a run changed.
+pub fn dotted(c: &RunConfig) -> std::collections::BTreeMap<String, String> {
+    fn walk(prefix: &str, t: &toml::Table, out: &mut std::collections::BTreeMap<String, String>) {
+        for (k, v) in t {
+            let name = if prefix.is_empty() {
+                k.clone()
+            } else {
+                format!("{prefix}.{k}")
+            };
+            match v {
+                toml::Value::Table(t) => walk(&name, t, out),
+                toml::Value::String(s) => {
+                    out.insert(name, s.clone());
+                }
+                v => {
+                    out.insert(name, v.to_string());
+                }
+            }
+        }
+    }
+    let mut out = std::collections::BTreeMap::new();
+    walk("", &table_of(c).unwrap_or_default(), &mut out);
+    out
+}
+
 impl RunSettings {
     /// Reads a `--config` file.
     pub fn read(path: &Path) -> Result<Self> {
