@@ -136,7 +136,7 @@ pub struct SaverSettings {
     pub adv_norm_joint: Option<bool>,
     #[arg(long, allow_hyphen_values = true, help = help("SAVER: weight of the penalty on the mean head's raw output beyond ±2 (0: off)", "saver.mu_raw_penalty"))]
     pub mu_raw_penalty: Option<f64>,
-    #[arg(long, value_delimiter = ',', value_name = "ENTRIES", help = help("SAVER: the mean entries (0-based, comma-separated) --mu-raw-penalty applies to; on angle 1,3,5,... are the angles [default: all]", "saver.mu_raw_penalty_entries"))]
+    #[arg(long, value_delimiter = ',', value_name = "ENTRIES", help = help("SAVER: the mean entries (0-based, comma-separated) --mu-raw-penalty applies to, none given: all; on angle 1,3,5,... are the angles", "saver.mu_raw_penalty_entries"))]
     pub mu_raw_penalty_entries: Option<Vec<usize>>,
     #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
     pub qrrl_spread: Option<f64>,
