@@ -3,7 +3,12 @@
 core/src/algo/per_dim.rs) over windows of steps: per coordinate j the critic's
 explained variance 1 - mse/var(R), the raw advantage's std and its correlation with
 the step's own reward; per action entry the share of mu at the tanh bound and the mean
-log sigma. Next to it, the run's mean episode length from metrics.csv.
+log sigma. Where the run has them (SAVER on continuous actions,
+core/src/algo/saver_signal.rs): per coordinate the rank correlation of the observed
+and the predicted target, the share of the position change the action causes and the
+PCPN's error against the action's effect; per action entry the signal-to-noise ratio
+of SAVER's and of A2C's gradient on the same batches. Next to it, the run's mean
+episode length from metrics.csv.
 
     bench/per_dim_summary.py RUN_DIR [--every 100000]
 """
@@ -48,6 +53,14 @@ def main():
         print("  corr(adv, own reward) " + fmt([mean(rs, f"adv_reward_corr_{j}") for j in range(d)], "{:6.2f}"))
         print("  mu at the bound       " + fmt([mean(rs, f"mu_sat_{i}") for i in range(m)], "{:6.2f}"))
         print("  log sigma             " + fmt([mean(rs, f"log_std_{i}") for i in range(m)], "{:6.2f}"))
+        if "rank_corr_0" in rs[0]:
+            print("  rank corr obs/pred    " + fmt([mean(rs, f"rank_corr_{j}") for j in range(d)], "{:6.2f}"))
+            print("  action share of dp    " + fmt([mean(rs, f"act_share_{j}") for j in range(d)], "{:6.3f}"))
+            print("  PCPN error / action   " + fmt([mean(rs, f"err_ratio_{j}") for j in range(d)], "{:6.2f}"))
+        if "snr_saver_0" in rs[0]:
+            c = sum(1 for k in rs[0] if k.startswith("snr_saver_"))
+            print("  SNR SAVER grad        " + fmt([mean(rs, f"snr_saver_{i}") for i in range(c)], "{:6.2f}"))
+            print("  SNR A2C grad          " + fmt([mean(rs, f"snr_a2c_{i}") for i in range(c)], "{:6.2f}"))
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ processes:
 
     python3 tests/python/test_saver_actor.py target/release/saver
 """
+import importlib
 import json
 import os
 import signal
@@ -359,33 +360,61 @@ def test_a_discrete_action_env_trains():
         srv.stop()
 
 
-def final_distance(tensors, settings, episodes=50, seed=0):
-    """Mean |fingertip - target| (L1) at the end of deterministic Reacher episodes."""
-    make_env, decl = reacher()
+def evaluate(tensors, settings, make_env, decl, max_steps, episodes=50):
+    """Deterministic episodes (seeds 0..episodes-1) of a policy on a custom env: mean
+    return (the env's own reward), success rate, and mean final L1 distance |p - g|."""
     env = make_env()
     policy = policy_for(settings.policy.family, tensors, settings.env.layout, dict(settings.policy.params))
-    dist = []
+    returns, successes, dist = [], 0, []
     for ep in range(episodes):
-        o, _ = env.reset(seed=seed + ep)
-        for _ in range(50):
-            a = policy.deterministic(np.asarray(o, dtype=np.float32)[None])[0]
-            o, _, term, trunc, _ = env.step(np.clip(a, -1, 1))
-            if np.max(np.abs(o[8:10])) < decl.success_radius:
+        o, _ = env.reset(seed=ep)
+        total, success = 0.0, False
+        for _ in range(max_steps):
+            a = policy.deterministic(np.asarray(o, dtype=np.float32)[None])
+            prev = o
+            o, r, term, trunc, info = env.step(decl.env_actions(a, env.action_space)[0])
+            total += float(r)
+            success = bool(decl.outcome(np.asarray(prev)[None], np.asarray(o)[None], [r], [term], [info],
+                                        check=False)[2][0])
+            if success or term or trunc:
                 break
-        dist.append(float(np.abs(o[8:10]).sum()))
-    return float(np.mean(dist))
+        successes += success
+        g = 0.0 if decl.goal is None else np.asarray(o)[decl.goal]
+        dist.append(float(np.abs(np.asarray(o)[decl.aligned] - g).sum()))
+        returns.append(total)
+    return {"return": float(np.mean(returns)), "success": successes / episodes, "distance": float(np.mean(dist))}
 
 
-def reacher_run(algo, steps, extra=(), pcpn=None, name=None):
-    cfg = write_reacher_config(os.path.join(TMP, "reacher.toml"))
-    args = ["--config", cfg, "--algo", algo, "--steps", str(steps), "--actors", "2", *extra]
+def final_distance(tensors, settings):
+    """Mean |fingertip - target| (L1) at the end of deterministic Reacher episodes."""
+    return evaluate(tensors, settings, *reacher(), max_steps=50)["distance"]
+
+
+def custom_env(factory):
+    """(make_env, decl) of a factory "module:function"."""
+    mod, _, fn = factory.partition(":")
+    return getattr(importlib.import_module(mod), fn)()
+
+
+def custom_run(factory, algo, steps, extra=(), pcpn=None, name=None, max_steps=50, out=None, actor_seed=0):
+    """A learner on the env of `factory` (saver_actor.examples:NAME) and two Python actor
+    processes of 4 envs each (their samples feed `pcpn`, a pcpn-trainer, for SAVER);
+    returns (untrained, trained) from `evaluate` and the wall time of the run."""
+    make_env, decl = custom_env(factory)
+    out = out or TMP
+    cfg = os.path.join(out, f"{decl.name}.toml")
+    with open(cfg, "w") as f:
+        f.write(f"max_episode_steps = {max_steps}\n" + decl.toml())
+    name = name or f"{decl.name}-{algo}"
+    args = ["learner", "--out", os.path.join(out, name), "--pcpn-dir", os.path.join(out, "pcpns"), "--config", cfg,
+            "--algo", algo, "--steps", str(steps), "--actors", "2", *extra]
     if pcpn is not None:
         args += ["--pcpn", pcpn.url]
-    srv = learner(name or f"reacher-{algo}", *args)
+    srv = Server(name, args)
     actors = []
     for i in range(2):
-        cmd = [sys.executable, "-m", "saver_actor", "act", "--factory", "saver_actor.examples:reacher",
-               "--learner", srv.url, "--envs", "4", "--seed", str(i)]
+        cmd = [sys.executable, "-m", "saver_actor", "act", "--factory", factory,
+               "--learner", srv.url, "--envs", "4", "--seed", str(actor_seed + i)]
         if pcpn is not None:
             cmd += ["--pcpn-samples", pcpn.url]
         actors.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
@@ -394,24 +423,30 @@ def reacher_run(algo, steps, extra=(), pcpn=None, name=None):
         settings, untrained, _ = registered_weights(srv.url)
         start = time.time()
         for a in actors:
-            out, _ = a.communicate(timeout=900)
-            assert a.returncode == 0, out[-3000:]
-            assert "run finished" in out, out[-2000:]
+            text, _ = a.communicate(timeout=7200)
+            assert a.returncode == 0, text[-3000:]
+            assert "run finished" in text, text[-2000:]
         wall = time.time() - start
         with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
             stub = pb_grpc.LearnerStub(ch)
             status = stub.Status(pb.StatusRequest(), timeout=30)
             trained = load(stub.GetWeights(pb.WeightsRequest(min_version=0), timeout=30).safetensors)
         assert status.finished and status.steps >= steps, status
-        before, after = final_distance(untrained, settings), final_distance(trained, settings)
-        print(f"  {algo}: {status.steps} steps in {wall:.0f} s; final |fingertip - target| {before:.3f} untrained, "
-              f"{after:.3f} trained")
-        return before, after
+        before = evaluate(untrained, settings, make_env, decl, max_steps)
+        after = evaluate(trained, settings, make_env, decl, max_steps)
+        print(f"  {decl.name} {algo}: {status.steps} steps in {wall:.0f} s; untrained {before}, trained {after}")
+        return before, after, wall
     finally:
         srv.stop()
         for a in actors:
             if a.poll() is None:
                 a.kill()
+
+
+def reacher_run(algo, steps, extra=(), pcpn=None, name=None):
+    """Reacher-v5 (50 steps): the final |fingertip - target| untrained and trained."""
+    before, after, _ = custom_run("saver_actor.examples:reacher", algo, steps, extra, pcpn, name)
+    return before["distance"], after["distance"]
 
 
 def test_reacher_trains_with_python_actors():

@@ -9,6 +9,7 @@ mod qnet_grad;
 mod qrrl;
 mod saver;
 mod saver_grad;
+pub mod saver_signal;
 
 pub use a2c::A2c;
 pub use fused::{threads_for, Loss};
@@ -254,6 +255,8 @@ pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
     }
 }
 
+#[cfg(test)]
+mod signal_tests;
 #[cfg(test)]
 mod tests;
 

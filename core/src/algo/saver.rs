@@ -6,10 +6,11 @@
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
 use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
+use super::saver_signal::{predicted_delta, signal_stats, SignalBatch};
 use super::{
     batch_returns, check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats,
 };
-use crate::config::{RunConfig, SaverConfig, MU_RAW_LIMIT};
+use crate::config::{DeltaTarget, RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
 use crate::nets::{Agent, Critic, Pcpn};
@@ -188,16 +189,32 @@ impl Algorithm for Saver {
         let mu = out.mu.narrow(0, 0, b)?;
         let log_std = out.log_std.narrow(0, 0, b)?;
         let obs = obs_all.narrow(0, 0, b)?;
+        let predicted;
+        let target: &[f32] = match self.cfg.target {
+            DeltaTarget::Observed => &batch.state_delta,
+            DeltaTarget::Predicted => {
+                predicted = predicted_delta(
+                    self.pcpn.pcpn(),
+                    &obs,
+                    &batch.actions,
+                    &log_std,
+                    &self.layout,
+                )?;
+                &predicted
+            }
+        };
+        let adv_host: Vec<f32> = advantage.flatten_all()?.to_vec1()?;
+        let mut dmu_host = None;
         let (actor, mon, agent_loss) = match self.path {
             GradPath::Fast => {
                 // dL/dμ and dL/dlog σ by hand, then the surrogate Σ μ·dμ + Σ log σ·dlog σ
                 // carries them into the agent through autograd.
                 let x = Tensor::cat(&[&obs, &mu, &log_std], 1)?.detach();
-                let adv: Vec<f32> = advantage.flatten_all()?.to_vec1()?;
                 let g = self
                     .pcpn
-                    .input_grad(&x, &batch.state_delta, &adv, &taus, &self.cfg)?;
+                    .input_grad(&x, target, &adv_host, &taus, &self.cfg)?;
                 let (dmu, dls) = policy_grads(&g.dx, o, self.layout.mu_dim())?;
+                dmu_host = Some(dmu.flatten_all()?.to_vec1::<f32>()?);
                 let surrogate = ((&mu * dmu)?.sum_all()? + (&log_std * dls)?.sum_all()?)?;
                 (g.actor_loss, g.mon_loss, surrogate)
             }
@@ -208,7 +225,7 @@ impl Algorithm for Saver {
                     &obs,
                     &mu,
                     &log_std,
-                    &matrix(&batch.state_delta, b, d, &self.dev)?,
+                    &matrix(target, b, d, &self.dev)?,
                     &advantage,
                     &tau,
                     &cos,
@@ -231,7 +248,16 @@ impl Algorithm for Saver {
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
-        let per_dim = super::per_dim::per_dim_stats(
+        let signal = SignalBatch {
+            obs: &obs,
+            mu: &mu,
+            log_std: &log_std,
+            actions: &batch.actions,
+            state_delta: &batch.state_delta,
+            advantage: &adv_host,
+            dmu: dmu_host.as_deref(),
+        };
+        let mut per_dim = super::per_dim::per_dim_stats(
             &returns_host,
             &value.flatten_all()?.to_vec1::<f32>()?,
             &batch.vector_reward,
@@ -240,6 +266,7 @@ impl Algorithm for Saver {
             d,
             self.mu_bound,
         );
+        per_dim.extend(signal_stats(self.pcpn.pcpn(), &self.layout, &signal)?);
         Ok(UpdateStats {
             values: vec![
                 ("actor_loss", actor),

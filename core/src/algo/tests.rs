@@ -11,7 +11,7 @@ use crate::rng::{rng_for, uniform01};
 use candle_core::{DType, Device, Tensor, Var};
 use std::sync::Arc;
 
-fn random_pcpn(layout: &EnvLayout, dtype: DType) -> Pcpn {
+pub(super) fn random_pcpn(layout: &EnvLayout, dtype: DType) -> Pcpn {
     let mut params = ParamSet::default();
     let p = Pcpn::init(layout, &mut rng_for(11, 3), &Device::Cpu, &mut params).unwrap();
     let t = p.tensors().unwrap();
@@ -23,7 +23,7 @@ fn random_pcpn(layout: &EnvLayout, dtype: DType) -> Pcpn {
     .unwrap()
 }
 
-fn uniform(rng: &mut crate::rng::SaverRng, n: usize, lo: f32, hi: f32) -> Vec<f32> {
+pub(super) fn uniform(rng: &mut crate::rng::SaverRng, n: usize, lo: f32, hi: f32) -> Vec<f32> {
     uniform01(rng, n)
         .into_iter()
         .map(|u| lo + (hi - lo) * u)
@@ -471,5 +471,6 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         mu_raw_penalty_entries: Vec::new(),
         qrrl_spread: 0.0,
         qrrl_vector: false,
+        target: crate::config::DeltaTarget::Observed,
     }
 }

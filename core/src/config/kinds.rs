@@ -90,6 +90,17 @@ impl OptimizerKind {
     }
 }
 
+/// Where SAVER's actor loss takes its target y from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum DeltaTarget {
+    /// The observed Δp of the transition (the paper).
+    #[default]
+    Observed,
+    /// The PCPN's median change for the action taken, at σ₀ (docs/ALGORITHM.md §7.1, `algo::saver_signal`).
+    Predicted,
+}
+
 /// Where PCPN pretraining samples come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]

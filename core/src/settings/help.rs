@@ -3,7 +3,7 @@
 
 use super::{dotted, DEFAULT_STEPS};
 use crate::config::{Algo, RunConfig, HIGH_DIM_ANGLE};
-use crate::env::{EnvKind, EnvSpec};
+use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
@@ -18,6 +18,8 @@ struct Defaults {
     others: Vec<Settings>,
     /// SAVER's default on angle from [`HIGH_DIM_ANGLE`] on.
     high_dim: Settings,
+    /// SAVER's default on a custom env (one with continuous actions).
+    custom: Settings,
 }
 
 fn defaults() -> &'static Defaults {
@@ -43,8 +45,23 @@ fn defaults() -> &'static Defaults {
             Algo::Saver,
             DEFAULT_STEPS,
         ));
+        let layout = EnvLayout {
+            obs_dim: 2,
+            continuous: 1,
+            choices: 0,
+            aligned_start: 0,
+            aligned_dim: 1,
+        };
+        let bounds = EnvBounds {
+            obs_low: vec![-1.0; 2],
+            obs_high: vec![1.0; 2],
+            max_change: 1.0,
+        };
+        let custom = EnvSpec::custom("custom", layout, bounds).expect("a custom env");
+        let custom = dotted(&RunConfig::recommended(&custom, Algo::Saver, DEFAULT_STEPS));
         Defaults {
             high_dim,
+            custom,
             angle: ["a2c", "saver", "--faithful saver"]
                 .into_iter()
                 .zip(angle)
@@ -90,6 +107,10 @@ pub fn help(text: &str, path: &str) -> String {
     if high != values[1].1 {
         out.push_str(&format!(" (saver on angle d >= {HIGH_DIM_ANGLE}: {high})"));
     }
+    let custom = shown(&d.custom, path);
+    if custom != values[1].1 {
+        out.push_str(&format!(" (saver on a custom env: {custom})"));
+    }
     out
 }
 
@@ -109,6 +130,10 @@ mod tests {
             help("Floor", "head.log_std_min"),
             "Floor [default: a2c -inf, saver -4.6, --faithful saver -inf] \
              (saver on angle d >= 8: -1.6)"
+        );
+        assert_eq!(
+            help("Wall", "saver.mu_raw_penalty"),
+            "Wall [default: 0.0] (saver on a custom env: 0.1)"
         );
         assert_eq!(
             help("Bound", "head.mu_bound"),

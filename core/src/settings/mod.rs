@@ -7,7 +7,8 @@
 //! over the one below ([`overlay`]), read back as a RunConfig and validated.
 
 use crate::config::{
-    Algo, Mode, OptimizerKind, PretrainConfig, RunConfig, SampleDistribution, DEFAULT_MAX_LAG,
+    Algo, DeltaTarget, Mode, OptimizerKind, PretrainConfig, RunConfig, SampleDistribution,
+    DEFAULT_MAX_LAG,
 };
 use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
 use crate::{CoreError, Result};
@@ -138,6 +139,9 @@ pub struct SaverSettings {
     pub mu_raw_penalty: Option<f64>,
     #[arg(long, value_delimiter = ',', value_name = "ENTRIES", help = help("SAVER: the mean entries (0-based, comma-separated) --mu-raw-penalty applies to, none given: all; on angle 1,3,5,... are the angles", "saver.mu_raw_penalty_entries"))]
     pub mu_raw_penalty_entries: Option<Vec<usize>>,
+    #[arg(long = "saver-target", value_enum, help = help("SAVER: the actor loss's target: the observed position change (the paper) or the PCPN's prediction for the action taken (for envs where one step's change is mostly velocity)", "saver.target"))]
+    #[serde(rename = "target")]
+    pub saver_target: Option<DeltaTarget>,
     #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
     pub qrrl_spread: Option<f64>,
     #[arg(long, help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "saver.qrrl_vector"))]

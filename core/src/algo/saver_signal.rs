@@ -1,0 +1,247 @@
+//! What SAVER's actor signal is made of (docs/ALGORITHM.md §7.1), and the target that
+//! keeps it when one step's position change is mostly velocity.
+//!
+//! SAVER's loss ρ_τ(y − Q_j(x, τ))·Â_j moves μ through ∂Q/∂μ weighted by
+//! `1{y < Q_j(x, τ)} − τ`: what matters is where the target y falls among the PCPN's
+//! quantiles for the policy's (μ, σ), its rank u. With an exact PCPN and y the observed
+//! Δp, u is the rank of the action noise ε = (a − μ)/σ along the action's effect, and
+//! the update is a score-function step routed by the PCPN's slopes. When the PCPN is
+//! off by more than the action moves p (an inertial env: Δp is mostly velocity), u is
+//! the PCPN's error instead, and the update is noise.
+//!
+//! The predicted target (`saver.target = "predicted"`) replaces the observed Δp by the
+//! PCPN's own prediction for the action taken: the median `Q_j([o, clip(a, −1, 1),
+//! log σ₀], ½)` at a small σ₀ ([`PREDICTED_SIGMA`]). Whatever error the PCPN makes
+//! about the state's own drift appears in the target and in the quantiles alike, so
+//! u is again the rank of the action's effect.
+//!
+//! Per coordinate j, on [`SIGNAL_ROWS`] rows of each batch (per_dim.csv):
+//!
+//! ```text
+//! rank_corr_j = corr_b(u(Δp_bj), u(Δp̃_bj))      u(y) = mean_m 1{y < Q_j(x_b, τ_m)}, τ_m = (m + ½)/M
+//! act_share_j = var_b(Δp̃_bj − Δp⁰_bj) / var_b(Δp_bj)          Δp̃ = Q_j([o, a, log σ₀], ½)
+//! err_ratio_j = mean_b (Δp_bj − Δp̃_bj)² / mean_b (Δp̃_bj − Δp⁰_bj)²   Δp⁰ = Q_j([o, μ, log σ₀], ½)
+//! ```
+//!
+//! (act_share: the share of the batch's spread of Δp that the action noise causes, per
+//! the PCPN; err_ratio: the PCPN's error on the step taken against the action's effect
+//! on it, above 1 when the error swamps the signal), and per continuous action entry i
+//! over the whole batch, the signal-to-noise ratio |mean_b g_bi| / (std_b g_bi / √B) of
+//! SAVER's gradient on μ_i (`snr_saver_i`) and of A2C's score-function gradient
+//! −(ε_bi/σ_i)·Σ_j Â_bj on the same batch (`snr_a2c_i`). Nothing here changes training.
+
+pub use crate::config::DeltaTarget;
+use crate::embedding::{cosine_embedding, EMBED_DIM};
+use crate::env::EnvLayout;
+use crate::nets::Pcpn;
+use crate::Result;
+use candle_core::{Device, Tensor};
+
+/// Rows of each batch the signal statistics are computed on (evenly spaced).
+pub const SIGNAL_ROWS: usize = 32;
+/// Quantile levels of the rank u.
+pub const SIGNAL_TAUS: usize = 8;
+
+/// The PCPN's quantiles Q_j(x_b, τ) for every row of `x` [B, I] at each of `taus`,
+/// on the host as [B, d, M].
+pub fn pcpn_quantiles(pcpn: &Pcpn, x: &Tensor, taus: &[f32]) -> Result<Vec<f32>> {
+    let (b, d, m) = (x.dim(0)?, pcpn.dim(), taus.len());
+    let all: Vec<f32> = (0..d * b).flat_map(|_| taus.iter().copied()).collect();
+    let cos = Tensor::from_vec(
+        cosine_embedding(&all, EMBED_DIM),
+        (d, b, m, EMBED_DIM),
+        x.device(),
+    )?
+    .to_dtype(pcpn.dtype())?;
+    let q = pcpn.forward(&x.to_dtype(pcpn.dtype())?, &cos)?; // [d, B, M]
+    let q = q.permute((1, 0, 2))?.contiguous()?;
+    Ok(q.to_dtype(candle_core::DType::F32)?
+        .flatten_all()?
+        .to_vec1()?)
+}
+
+/// The PCPN input of the continuous actions `actions` [B, A] (clipped to [−1, 1], as
+/// the envs clip them) in place of the mean, with the policy's own log σ [B, L]:
+/// [obs, clip(a), log σ]. Layouts without choices only.
+pub fn action_input(
+    obs: &Tensor,
+    actions: &[f32],
+    log_std: &Tensor,
+    layout: &EnvLayout,
+) -> Result<Tensor> {
+    let (b, c) = (obs.dim(0)?, layout.continuous);
+    debug_assert_eq!(layout.choices, 0);
+    let a: Vec<f32> = actions.iter().map(|v| v.clamp(-1.0, 1.0)).collect();
+    let a = Tensor::from_vec(a, (b, c), obs.device())?;
+    Ok(Tensor::cat(&[obs, &a, log_std], 1)?)
+}
+
+/// The predicted target Δp̃ [B, d]: the PCPN's median change for each row's action.
+pub fn predicted_delta(
+    pcpn: &Pcpn,
+    obs: &Tensor,
+    actions: &[f32],
+    log_std: &Tensor,
+    layout: &EnvLayout,
+) -> Result<Vec<f32>> {
+    pcpn_quantiles(pcpn, &action_input(obs, actions, log_std, layout)?, &[0.5])
+}
+
+/// Population mean and variance.
+fn moments(v: &[f64]) -> (f64, f64) {
+    let n = v.len().max(1) as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    (mean, v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n)
+}
+
+/// Pearson correlation (0 where either side does not vary).
+fn correlation(x: &[f64], y: &[f64]) -> f64 {
+    let ((mx, vx), (my, vy)) = (moments(x), moments(y));
+    let n = x.len().max(1) as f64;
+    let cov = x
+        .iter()
+        .zip(y)
+        .map(|(a, b)| (a - mx) * (b - my))
+        .sum::<f64>()
+        / n;
+    if vx > 0.0 && vy > 0.0 {
+        cov / (vx * vy).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// |mean| / (std / √n) of `v` (0 where it does not vary).
+fn snr(v: &[f64]) -> f64 {
+    let (mean, var) = moments(v);
+    if var > 0.0 {
+        mean.abs() / (var / v.len() as f64).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// One batch: the policy's inputs and what happened.
+pub struct SignalBatch<'a> {
+    /// Observations [B, O].
+    pub obs: &'a Tensor,
+    /// Policy means [B, M] and log σ [B, L] (the actions' policy).
+    pub mu: &'a Tensor,
+    pub log_std: &'a Tensor,
+    /// Actions taken [B, A], observed Δp [B, d], advantages as trained on [B, d].
+    pub actions: &'a [f32],
+    pub state_delta: &'a [f32],
+    pub advantage: &'a [f32],
+    /// SAVER's per-row gradient on μ [B, M], where the update computed it per row.
+    pub dmu: Option<&'a [f32]>,
+}
+
+/// The statistics of the module docs; empty for layouts with a choice (the action
+/// noise of a choice has no rank along Δp).
+pub fn signal_stats(
+    pcpn: &Pcpn,
+    layout: &EnvLayout,
+    s: &SignalBatch,
+) -> Result<Vec<(&'static str, Vec<f32>)>> {
+    if layout.choices > 0 {
+        return Ok(Vec::new());
+    }
+    let (b, d, c) = (s.obs.dim(0)?, layout.aligned_dim, layout.continuous);
+    let step = b.div_ceil(SIGNAL_ROWS).max(1);
+    let rows: Vec<usize> = (0..b).step_by(step).collect();
+    let dev: &Device = s.obs.device();
+    let pick = |t: &Tensor| -> Result<Tensor> {
+        let idx: Vec<u32> = rows.iter().map(|&r| r as u32).collect();
+        Ok(t.contiguous()?
+            .index_select(&Tensor::new(idx.as_slice(), dev)?, 0)?)
+    };
+    let (obs, mu, log_std) = (pick(s.obs)?, pick(s.mu)?, pick(s.log_std)?);
+    let actions: Vec<f32> = rows
+        .iter()
+        .flat_map(|&r| s.actions[r * c..(r + 1) * c].iter().copied())
+        .collect();
+    let taus: Vec<f32> = (0..SIGNAL_TAUS)
+        .map(|m| (m as f32 + 0.5) / SIGNAL_TAUS as f32)
+        .collect();
+    let q = pcpn_quantiles(pcpn, &Tensor::cat(&[&obs, &mu, &log_std], 1)?, &taus)?; // [S, d, M]
+    let tilde = predicted_delta(pcpn, &obs, &actions, &log_std, layout)?; // [S, d]
+    let at_mean = pcpn_quantiles(pcpn, &Tensor::cat(&[&obs, &mu, &log_std], 1)?, &[0.5])?; // [S, d]
+    let rank = |row: usize, j: usize, y: f32| -> f64 {
+        let qs = &q[(row * d + j) * SIGNAL_TAUS..(row * d + j + 1) * SIGNAL_TAUS];
+        qs.iter().filter(|&&qm| y < qm).count() as f64 / SIGNAL_TAUS as f64
+    };
+    let (mut rank_corr, mut act_share, mut err_ratio) = (vec![], vec![], vec![]);
+    for j in 0..d {
+        let (mut u_obs, mut u_pred, mut dp, mut act, mut err) =
+            (vec![], vec![], vec![], vec![], vec![]);
+        for (i, &r) in rows.iter().enumerate() {
+            let (y, yt, y0) = (
+                s.state_delta[r * d + j],
+                tilde[i * d + j],
+                at_mean[i * d + j],
+            );
+            u_obs.push(rank(i, j, y));
+            u_pred.push(rank(i, j, yt));
+            dp.push(y as f64);
+            act.push((yt - y0) as f64);
+            err.push((y - yt) as f64);
+        }
+        let act_sq = act.iter().map(|v| v * v).sum::<f64>();
+        rank_corr.push(correlation(&u_obs, &u_pred) as f32);
+        let var_dp = moments(&dp).1;
+        act_share.push(if var_dp > 0.0 {
+            (moments(&act).1 / var_dp) as f32
+        } else {
+            0.0
+        });
+        let err_sq = err.iter().map(|v| v * v).sum::<f64>();
+        err_ratio.push((err_sq / act_sq.max(1e-30)) as f32);
+    }
+    let mut out = vec![
+        ("rank_corr", rank_corr),
+        ("act_share", act_share),
+        ("err_ratio", err_ratio),
+    ];
+    if let Some(dmu) = s.dmu {
+        let m = layout.mu_dim();
+        let mu: Vec<f32> = s.mu.flatten_all()?.to_vec1()?;
+        let ls: Vec<f32> = s.log_std.flatten_all()?.to_vec1()?;
+        let l = s.log_std.dim(1)?;
+        let (mut snr_saver, mut snr_a2c) = (vec![], vec![]);
+        for i in 0..c {
+            let g: Vec<f64> = (0..b).map(|r| dmu[r * m + i] as f64).collect();
+            let a2c: Vec<f64> = (0..b)
+                .map(|r| {
+                    let sigma = (ls[r * l + i] as f64).exp();
+                    let eps = (s.actions[r * c + i] - mu[r * m + i]) as f64 / sigma;
+                    let adv: f64 = s.advantage[r * d..(r + 1) * d]
+                        .iter()
+                        .map(|&v| v as f64)
+                        .sum();
+                    -eps / sigma * adv
+                })
+                .collect();
+            snr_saver.push(snr(&g) as f32);
+            snr_a2c.push(snr(&a2c) as f32);
+        }
+        out.push(("snr_saver", snr_saver));
+        out.push(("snr_a2c", snr_a2c));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// By hand: x = (1, 2, 3), y = (2, 4, 7): means 2 and 13/3, cov = (−1·−7/3 + 0 +
+    /// 1·8/3)/3 = 5/3, var x = 2/3, var y = (49/9 + 1/9 + 64/9)/3 = 38/9, so
+    /// corr = (5/3)/√(2/3 · 38/9) = 0.99339927. snr(1, 2, 3) = 2/√((2/3)/3) = 4.2426407.
+    #[test]
+    fn correlation_and_snr_by_hand() {
+        assert!((correlation(&[1.0, 2.0, 3.0], &[2.0, 4.0, 7.0]) - 0.993_399_27).abs() < 1e-7);
+        assert_eq!(correlation(&[1.0, 1.0], &[2.0, 3.0]), 0.0);
+        assert!((snr(&[1.0, 2.0, 3.0]) - 4.242_640_7).abs() < 1e-6);
+        assert_eq!(snr(&[5.0, 5.0]), 0.0);
+    }
+}
