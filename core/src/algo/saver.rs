@@ -6,7 +6,7 @@
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
 use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
-use super::saver_signal::{predicted_delta, signal_stats, SignalBatch};
+use super::saver_signal::{predicted_delta, rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY};
 use super::{
     batch_returns, check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats,
 };
@@ -58,6 +58,8 @@ pub struct Saver {
     mu_bound: Option<f64>,
     /// Device.
     dev: Device,
+    /// The last rank statistics (saver_signal.rs) and the updates since they were made.
+    ranks: (Vec<(&'static str, Vec<f32>)>, u64),
 }
 
 /// How the agent's gradient through the PCPN is computed.
@@ -146,6 +148,7 @@ impl Saver {
             cfg: config.saver.clone(),
             mu_bound: config.head.mu_bound,
             dev: dev.clone(),
+            ranks: (Vec::new(), 0),
         })
     }
 
@@ -266,7 +269,14 @@ impl Algorithm for Saver {
             d,
             self.mu_bound,
         );
-        per_dim.extend(signal_stats(self.pcpn.pcpn(), &self.layout, &signal)?);
+        // The rank statistics cost PCPN passes: made on the first update of this learner
+        // and every SIGNAL_EVERY-th after it, the last ones repeated in between.
+        if self.ranks.1 % SIGNAL_EVERY == 0 {
+            self.ranks.0 = rank_stats(self.pcpn.pcpn(), &self.layout, &signal)?;
+        }
+        self.ranks.1 += 1;
+        per_dim.extend(self.ranks.0.iter().cloned());
+        per_dim.extend(snr_stats(&self.layout, &signal)?);
         Ok(UpdateStats {
             values: vec![
                 ("actor_loss", actor),

@@ -15,7 +15,8 @@
 //! about the state's own drift appears in the target and in the quantiles alike, so
 //! u is again the rank of the action's effect.
 //!
-//! Per coordinate j, on [`SIGNAL_ROWS`] rows of each batch (per_dim.csv):
+//! Per coordinate j, on [`SIGNAL_ROWS`] rows of every [`SIGNAL_EVERY`]-th batch
+//! (per_dim.csv):
 //!
 //! ```text
 //! rank_corr_j = corr_b(u(Δp_bj), u(Δp̃_bj))      u(y) = mean_m 1{y < Q_j(x_b, τ_m)}, τ_m = (m + ½)/M
@@ -37,8 +38,11 @@ use crate::nets::Pcpn;
 use crate::Result;
 use candle_core::{Device, Tensor};
 
-/// Rows of each batch the signal statistics are computed on (evenly spaced).
-pub const SIGNAL_ROWS: usize = 32;
+/// Rows of a batch the rank statistics are computed on (evenly spaced).
+pub const SIGNAL_ROWS: usize = 64;
+/// Updates between two computations of the rank statistics (SAVER repeats the last
+/// ones in between: a per_dim.csv row, the mean over 10 updates, holds one).
+pub const SIGNAL_EVERY: u64 = 10;
 /// Quantile levels of the rank u.
 pub const SIGNAL_TAUS: usize = 8;
 
@@ -136,9 +140,9 @@ pub struct SignalBatch<'a> {
     pub dmu: Option<&'a [f32]>,
 }
 
-/// The statistics of the module docs; empty for layouts with a choice (the action
-/// noise of a choice has no rank along Δp).
-pub fn signal_stats(
+/// rank_corr, act_share and err_ratio (module docs), on [`SIGNAL_ROWS`] rows; empty for
+/// layouts with a choice. Three PCPN forward passes of a few rows.
+pub fn rank_stats(
     pcpn: &Pcpn,
     layout: &EnvLayout,
     s: &SignalBatch,
@@ -160,14 +164,16 @@ pub fn signal_stats(
         .iter()
         .flat_map(|&r| s.actions[r * c..(r + 1) * c].iter().copied())
         .collect();
+    // The M levels of the rank, then ½ for Δp⁰: [S, d, M + 1].
     let taus: Vec<f32> = (0..SIGNAL_TAUS)
         .map(|m| (m as f32 + 0.5) / SIGNAL_TAUS as f32)
+        .chain([0.5])
         .collect();
-    let q = pcpn_quantiles(pcpn, &Tensor::cat(&[&obs, &mu, &log_std], 1)?, &taus)?; // [S, d, M]
+    let q = pcpn_quantiles(pcpn, &Tensor::cat(&[&obs, &mu, &log_std], 1)?, &taus)?;
     let tilde = predicted_delta(pcpn, &obs, &actions, &log_std, layout)?; // [S, d]
-    let at_mean = pcpn_quantiles(pcpn, &Tensor::cat(&[&obs, &mu, &log_std], 1)?, &[0.5])?; // [S, d]
+    let per = SIGNAL_TAUS + 1;
     let rank = |row: usize, j: usize, y: f32| -> f64 {
-        let qs = &q[(row * d + j) * SIGNAL_TAUS..(row * d + j + 1) * SIGNAL_TAUS];
+        let qs = &q[(row * d + j) * per..(row * d + j) * per + SIGNAL_TAUS];
         qs.iter().filter(|&&qm| y < qm).count() as f64 / SIGNAL_TAUS as f64
     };
     let (mut rank_corr, mut act_share, mut err_ratio) = (vec![], vec![], vec![]);
@@ -178,7 +184,7 @@ pub fn signal_stats(
             let (y, yt, y0) = (
                 s.state_delta[r * d + j],
                 tilde[i * d + j],
-                at_mean[i * d + j],
+                q[(i * d + j) * per + SIGNAL_TAUS],
             );
             u_obs.push(rank(i, j, y));
             u_pred.push(rank(i, j, yt));
@@ -197,11 +203,18 @@ pub fn signal_stats(
         let err_sq = err.iter().map(|v| v * v).sum::<f64>();
         err_ratio.push((err_sq / act_sq.max(1e-30)) as f32);
     }
-    let mut out = vec![
+    Ok(vec![
         ("rank_corr", rank_corr),
         ("act_share", act_share),
         ("err_ratio", err_ratio),
-    ];
+    ])
+}
+
+/// snr_saver and snr_a2c per continuous action entry (module docs), over the whole
+/// batch, where the update gave its per-row gradient; host arithmetic only.
+pub fn snr_stats(layout: &EnvLayout, s: &SignalBatch) -> Result<Vec<(&'static str, Vec<f32>)>> {
+    let (b, d, c) = (s.obs.dim(0)?, layout.aligned_dim, layout.continuous);
+    let mut out = Vec::new();
     if let Some(dmu) = s.dmu {
         let m = layout.mu_dim();
         let mu: Vec<f32> = s.mu.flatten_all()?.to_vec1()?;
@@ -243,5 +256,36 @@ mod tests {
         assert_eq!(correlation(&[1.0, 1.0], &[2.0, 3.0]), 0.0);
         assert!((snr(&[1.0, 2.0, 3.0]) - 4.242_640_7).abs() < 1e-6);
         assert_eq!(snr(&[5.0, 5.0]), 0.0);
+    }
+
+    /// Three rows, one action entry, one coordinate: SAVER's per-row gradients 1, 2, 3
+    /// give 4.2426 (above); A2C's −(ε/σ)·Â with μ = 0, σ = 1, a = (1, −2, 3), Â = (1,
+    /// 1, −1) is (−1, 2, 3): mean 4/3, population variance (49 + 4 + 25)/27 = 78/27, so
+    /// snr = (4/3)/√(78/81) = 1.3587324.
+    #[test]
+    fn snr_stats_by_hand() {
+        let dev = Device::Cpu;
+        let layout = EnvLayout {
+            obs_dim: 1,
+            continuous: 1,
+            choices: 0,
+            aligned_start: 0,
+            aligned_dim: 1,
+        };
+        let zeros = Tensor::zeros((3, 1), candle_core::DType::F32, &dev).unwrap();
+        let s = SignalBatch {
+            obs: &zeros,
+            mu: &zeros,
+            log_std: &zeros,
+            actions: &[1.0, -2.0, 3.0],
+            state_delta: &[0.0; 3],
+            advantage: &[1.0, 1.0, -1.0],
+            dmu: Some(&[1.0, 2.0, 3.0]),
+        };
+        let out = snr_stats(&layout, &s).unwrap();
+        assert_eq!(out[0].0, "snr_saver");
+        assert!((out[0].1[0] - 4.242_640_7).abs() < 1e-5, "{out:?}");
+        assert_eq!(out[1].0, "snr_a2c");
+        assert!((out[1].1[0] - 1.358_732_4).abs() < 1e-5, "{out:?}");
     }
 }

@@ -2,7 +2,7 @@
 //! target makes SAVER's update blind to an error in the observed change, the observed
 //! one does not, and the statistics tell the two cases apart.
 
-use super::saver_signal::{predicted_delta, signal_stats, SignalBatch};
+use super::saver_signal::{predicted_delta, rank_stats, SignalBatch};
 use super::tests::{random_pcpn, uniform};
 use super::*;
 use crate::config::{Algo, DeltaTarget, RunConfig};
@@ -99,7 +99,7 @@ fn signal_stats_tell_an_exact_pcpn_from_one_whose_error_swamps_the_action() {
             advantage: &advantage,
             dmu: None,
         };
-        signal_stats(&pcpn, &l, &s).unwrap()
+        rank_stats(&pcpn, &l, &s).unwrap()
     };
     let get =
         |s: &[(&str, Vec<f32>)], name: &str| s.iter().find(|(n, _)| *n == name).unwrap().1.clone();
