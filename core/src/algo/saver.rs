@@ -271,7 +271,7 @@ impl Algorithm for Saver {
         );
         // The rank statistics cost PCPN passes: made on the first update of this learner
         // and every SIGNAL_EVERY-th after it, the last ones repeated in between.
-        if self.ranks.1 % SIGNAL_EVERY == 0 {
+        if self.ranks.1.is_multiple_of(SIGNAL_EVERY) {
             self.ranks.0 = rank_stats(self.pcpn.pcpn(), &self.layout, &signal)?;
         }
         self.ranks.1 += 1;
