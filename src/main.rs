@@ -53,17 +53,25 @@ enum Command {
 /// Log filter unless RUST_LOG says otherwise.
 const DEFAULT_LOG: &str = "warn,saver_learner=info,saver_pcpn_trainer=info,saver_run=info";
 
+/// `saver bench`'s log filter: its tables only, not the INFO lines of the services it
+/// starts in-process (actors joining and leaving); RUST_LOG overrides.
+const BENCH_LOG: &str = "warn";
+
 fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let default_log = match cli.command {
+        Command::Bench(_) => BENCH_LOG,
+        _ => DEFAULT_LOG,
+    };
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 // Warnings, and what the services do (actors joining and leaving,
                 // pretraining progress); RUST_LOG overrides.
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG)),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_log)),
         )
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
     saver_run::init_process(None);
     let result = match cli.command {
         Command::Train(a) => train::run(a),
