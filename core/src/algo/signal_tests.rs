@@ -3,32 +3,23 @@
 //! one does not, and the statistics tell the two cases apart.
 
 use super::saver_signal::{predicted_delta, rank_stats, SignalBatch};
-use super::tests::{random_pcpn, uniform};
+use super::tests::{random_batch, random_pcpn, uniform};
 use super::*;
 use crate::config::{Algo, DeltaTarget, RunConfig};
 use crate::env::{EnvKind, EnvSpec};
 use crate::rng::rng_for;
 use candle_core::{DType, Device, Tensor};
 
-/// A batch of 8 trajectories × 8 steps of random rows (angle layout).
+/// A batch of 8 trajectories × 8 steps of random rows, some actions beyond ±1.
 fn batch(spec: &EnvSpec) -> Batch {
-    let l = spec.layout();
-    let mut rng = rng_for(7, 0);
-    let (t, n) = (8, 8);
-    let b = t * n;
-    Batch {
-        n_traj: t,
-        n_steps: n,
-        obs: uniform(&mut rng, b * l.obs_dim, -1.0, 1.0),
-        last_obs: uniform(&mut rng, t * l.obs_dim, -1.0, 1.0),
-        actions: uniform(&mut rng, b * l.action_dim(), -1.2, 1.2),
-        state_delta: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
-        vector_reward: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
-        done: (0..b).map(|i| i % 13 == 12).collect(),
-        timeouts: vec![],
-        timeout_obs: vec![],
-        steps: b as u64,
-    }
+    random_batch(
+        &spec.layout(),
+        8,
+        8,
+        7,
+        1.2,
+        (0..64).map(|i| i % 13 == 12).collect(),
+    )
 }
 
 fn agent_after_one_update(config: &RunConfig, batch: &Batch) -> Vec<f32> {

@@ -30,24 +30,43 @@ pub(super) fn uniform(rng: &mut crate::rng::SaverRng, n: usize, lo: f32, hi: f32
         .collect()
 }
 
-/// A synthetic batch of 2 trajectories × 3 steps.
-fn small_batch(l: &EnvLayout) -> Batch {
-    let mut rng = rng_for(5, 0);
-    let (t, n) = (2, 3);
+/// A synthetic batch of `t` trajectories × `n` steps from seed `seed`: random rows,
+/// actions within ±`action_bound`, the given `done` flags.
+pub(super) fn random_batch(
+    l: &EnvLayout,
+    t: usize,
+    n: usize,
+    seed: u64,
+    action_bound: f32,
+    done: Vec<bool>,
+) -> Batch {
+    let mut rng = rng_for(seed, 0);
     let b = t * n;
     Batch {
         n_traj: t,
         n_steps: n,
         obs: uniform(&mut rng, b * l.obs_dim, -1.0, 1.0),
         last_obs: uniform(&mut rng, t * l.obs_dim, -1.0, 1.0),
-        actions: uniform(&mut rng, b * l.action_dim(), -1.0, 1.0),
+        actions: uniform(&mut rng, b * l.action_dim(), -action_bound, action_bound),
         state_delta: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
         vector_reward: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
-        done: vec![false, true, false, false, false, false],
+        done,
         timeouts: vec![],
         timeout_obs: vec![],
         steps: b as u64,
     }
+}
+
+/// A synthetic batch of 2 trajectories × 3 steps.
+fn small_batch(l: &EnvLayout) -> Batch {
+    random_batch(
+        l,
+        2,
+        3,
+        5,
+        1.0,
+        vec![false, true, false, false, false, false],
+    )
 }
 
 /// SAVER's agent-side loss (L_a + L_mon) in f64 at (μ, log σ), fixed everything else.
