@@ -11,17 +11,19 @@
 //!
 //! The predicted target (`saver.target = "predicted"`) replaces the observed Δp by the
 //! PCPN's own prediction for the action taken: the median `Q_j([o, clip(a, −1, 1),
-//! log σ₀], ½)` at a small σ₀ ([`PREDICTED_SIGMA`]). Whatever error the PCPN makes
-//! about the state's own drift appears in the target and in the quantiles alike, so
-//! u is again the rank of the action's effect.
+//! log σ], ½)` at the policy's own σ. Whatever error the PCPN makes about the state's
+//! own drift (or about how its median moves with σ) appears in the target and in the
+//! quantiles alike, so u is again the rank of the action's effect. It does not see
+//! what the PCPN does not know (a wall that stops the motion): measured, it is an
+//! option, not a default.
 //!
 //! Per coordinate j, on [`SIGNAL_ROWS`] rows of every [`SIGNAL_EVERY`]-th batch
 //! (per_dim.csv):
 //!
 //! ```text
 //! rank_corr_j = corr_b(u(Δp_bj), u(Δp̃_bj))      u(y) = mean_m 1{y < Q_j(x_b, τ_m)}, τ_m = (m + ½)/M
-//! act_share_j = var_b(Δp̃_bj − Δp⁰_bj) / var_b(Δp_bj)          Δp̃ = Q_j([o, a, log σ₀], ½)
-//! err_ratio_j = mean_b (Δp_bj − Δp̃_bj)² / mean_b (Δp̃_bj − Δp⁰_bj)²   Δp⁰ = Q_j([o, μ, log σ₀], ½)
+//! act_share_j = var_b(Δp̃_bj − Δp⁰_bj) / var_b(Δp_bj)          Δp̃ = Q_j([o, clip(a), log σ], ½)
+//! err_ratio_j = mean_b (Δp_bj − Δp̃_bj)² / mean_b (Δp̃_bj − Δp⁰_bj)²   Δp⁰ = Q_j([o, μ, log σ], ½)
 //! ```
 //!
 //! (act_share: the share of the batch's spread of Δp that the action noise causes, per

@@ -145,9 +145,10 @@ pub const RECOMMENDED_QRRL_LR: f64 = 1e-3;
 pub const RECOMMENDED_CUSTOM_A2C_LR: f64 = 1e-3;
 /// SAVER's saturation penalty ([`SaverConfig::mu_raw_penalty`]) on a custom env: in the
 /// inertial envs measured (issue 31) μ ran into the tanh bound and stayed there (the
-/// point mass: success 0.06 on one seed of five, μ at its bound 100 %); with the wall
-/// the point mass reaches 0.93 mean success over five seeds (0.79 without, A2C 0.84)
-/// and Reacher ends nearer the target (results/README.md).
+/// point mass: 16 % / 42 % of rows at the bound by 300 k steps, 100 % on a seed that
+/// collapsed); with the wall the point mass reaches 0.93 mean success over five seeds
+/// (0.79 without, A2C 0.84) and Reacher ends nearer the target than A2C on 4 of 5
+/// (results/README.md, "Inertial envs").
 pub const CUSTOM_SAVER_MU_RAW_PENALTY: f64 = 0.1;
 /// PCPN pretraining batches by default (the paper's: 100,000 for angle).
 pub const RECOMMENDED_PRETRAIN_BATCHES: u64 = 5_000;
