@@ -532,23 +532,10 @@ pub async fn provide(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use saver_core::env::{EnvBounds, EnvLayout};
 
     /// obs [x, y], one continuous action, aligned entry 0.
     fn spec() -> EnvSpec {
-        let layout = EnvLayout {
-            obs_dim: 2,
-            continuous: 1,
-            choices: 0,
-            aligned_start: 0,
-            aligned_dim: 1,
-        };
-        let bounds = EnvBounds {
-            obs_low: vec![-1.0, -1.0],
-            obs_high: vec![1.0, 1.0],
-            max_change: 0.1,
-        };
-        EnvSpec::custom("line", layout, bounds).unwrap()
+        EnvSpec::unit_custom("line", 0.1).unwrap()
     }
 
     /// `n` samples whose delta is their arrival number / 1e5 (each one recognisable).

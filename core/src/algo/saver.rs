@@ -58,8 +58,8 @@ pub struct Saver {
     mu_bound: Option<f64>,
     /// Device.
     dev: Device,
-    /// The last rank statistics (saver_signal.rs) and the updates since they were made.
-    ranks: (Vec<(&'static str, Vec<f32>)>, u64),
+    /// The last rank statistics (saver_signal.rs).
+    ranks: Vec<(&'static str, Vec<f32>)>,
 }
 
 /// How the agent's gradient through the PCPN is computed.
@@ -148,7 +148,7 @@ impl Saver {
             cfg: config.saver.clone(),
             mu_bound: config.head.mu_bound,
             dev: dev.clone(),
-            ranks: (Vec::new(), 0),
+            ranks: Vec::new(),
         })
     }
 
@@ -180,33 +180,39 @@ impl Algorithm for Saver {
         let returns_host =
             batch_returns(batch, &batch.vector_reward, &v_all, n_ends, d, self.gamma)?;
         let returns = Tensor::from_slice(&returns_host, (b, d), &self.dev)?;
-        let mut advantage = (&returns - &value)?.detach();
+        // Â on the host (what the fast path and the statistics read) and as a tensor.
+        let mut adv_host: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?;
         if self.cfg.adv_norm {
-            let mut a = advantage.flatten_all()?.to_vec1::<f32>()?;
-            normalize_advantages(&mut a, d, self.cfg.adv_norm_joint);
-            advantage = Tensor::from_vec(a, (b, d), &self.dev)?;
+            normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }
+        let advantage = Tensor::from_slice(&adv_host, (b, d), &self.dev)?;
         let critic_loss = ((&value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
 
         let taus = uniform01(&mut self.rng, d * b * k);
         let mu = out.mu.narrow(0, 0, b)?;
         let log_std = out.log_std.narrow(0, 0, b)?;
         let obs = obs_all.narrow(0, 0, b)?;
+        let (mu_host, log_std_host): (Vec<f32>, Vec<f32>) = (
+            mu.flatten_all()?.to_vec1()?,
+            log_std.flatten_all()?.to_vec1()?,
+        );
+        let signal = SignalBatch {
+            obs: &batch.obs,
+            mu: &mu_host,
+            log_std: &log_std_host,
+            actions: &batch.actions,
+            state_delta: &batch.state_delta,
+            advantage: &adv_host,
+            dmu: None,
+        };
         let predicted;
         let target: &[f32] = match self.cfg.target {
             DeltaTarget::Observed => &batch.state_delta,
             DeltaTarget::Predicted => {
-                predicted = predicted_delta(
-                    self.pcpn.pcpn(),
-                    &obs,
-                    &batch.actions,
-                    &log_std,
-                    &self.layout,
-                )?;
+                predicted = predicted_delta(self.pcpn.pcpn(), &self.layout, &signal, &self.dev)?;
                 &predicted
             }
         };
-        let adv_host: Vec<f32> = advantage.flatten_all()?.to_vec1()?;
         let mut dmu_host = None;
         let (actor, mon, agent_loss) = match self.path {
             GradPath::Fast => {
@@ -252,31 +258,26 @@ impl Algorithm for Saver {
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         let signal = SignalBatch {
-            obs: &obs,
-            mu: &mu,
-            log_std: &log_std,
-            actions: &batch.actions,
-            state_delta: &batch.state_delta,
-            advantage: &adv_host,
             dmu: dmu_host.as_deref(),
+            ..signal
         };
         let mut per_dim = super::per_dim::per_dim_stats(
             &returns_host,
             &value.flatten_all()?.to_vec1::<f32>()?,
             &batch.vector_reward,
-            &mu.flatten_all()?.to_vec1::<f32>()?,
-            &log_std.flatten_all()?.to_vec1::<f32>()?,
+            &mu_host,
+            &log_std_host,
             d,
             self.mu_bound,
         );
-        // The rank statistics cost PCPN passes: made on the first update of this learner
-        // and every SIGNAL_EVERY-th after it, the last ones repeated in between.
-        if self.ranks.1.is_multiple_of(SIGNAL_EVERY) {
-            self.ranks.0 = rank_stats(self.pcpn.pcpn(), &self.layout, &signal)?;
+        // The rank statistics cost PCPN passes: made on this learner's first update (a
+        // resumed run's per_dim.csv keeps its columns) and every SIGNAL_EVERY-th
+        // optimiser step, the last ones repeated in between.
+        if self.ranks.is_empty() || self.opt.steps().is_multiple_of(SIGNAL_EVERY) {
+            self.ranks = rank_stats(self.pcpn.pcpn(), &self.layout, &signal, &self.dev)?;
         }
-        self.ranks.1 += 1;
-        per_dim.extend(self.ranks.0.iter().cloned());
-        per_dim.extend(snr_stats(&self.layout, &signal)?);
+        per_dim.extend(self.ranks.iter().cloned());
+        per_dim.extend(snr_stats(&self.layout, &signal));
         Ok(UpdateStats {
             values: vec![
                 ("actor_loss", actor),

@@ -33,12 +33,11 @@
 //! SAVER's gradient on μ_i (`snr_saver_i`) and of A2C's score-function gradient
 //! −(ε_bi/σ_i)·Σ_j Â_bj on the same batch (`snr_a2c_i`). Nothing here changes training.
 
-pub use crate::config::DeltaTarget;
-use crate::embedding::{cosine_embedding, EMBED_DIM};
+use super::saver::tau_tensors;
 use crate::env::EnvLayout;
 use crate::nets::Pcpn;
 use crate::Result;
-use candle_core::{Device, Tensor};
+use candle_core::{DType, Device, Tensor};
 
 /// Rows of a batch the rank statistics are computed on (evenly spaced).
 pub const SIGNAL_ROWS: usize = 64;
@@ -53,44 +52,21 @@ pub const SIGNAL_TAUS: usize = 8;
 pub fn pcpn_quantiles(pcpn: &Pcpn, x: &Tensor, taus: &[f32]) -> Result<Vec<f32>> {
     let (b, d, m) = (x.dim(0)?, pcpn.dim(), taus.len());
     let all: Vec<f32> = (0..d * b).flat_map(|_| taus.iter().copied()).collect();
-    let cos = Tensor::from_vec(
-        cosine_embedding(&all, EMBED_DIM),
-        (d, b, m, EMBED_DIM),
-        x.device(),
-    )?
-    .to_dtype(pcpn.dtype())?;
-    let q = pcpn.forward(&x.to_dtype(pcpn.dtype())?, &cos)?; // [d, B, M]
+    let (_, cos) = tau_tensors(&all, d, b, m, x.device())?;
+    let q = pcpn.forward(&x.to_dtype(pcpn.dtype())?, &cos.to_dtype(pcpn.dtype())?)?; // [d, B, M]
     let q = q.permute((1, 0, 2))?.contiguous()?;
-    Ok(q.to_dtype(candle_core::DType::F32)?
-        .flatten_all()?
-        .to_vec1()?)
-}
-
-/// The PCPN input of the continuous actions `actions` [B, A] (clipped to [−1, 1], as
-/// the envs clip them) in place of the mean, with the policy's own log σ [B, L]:
-/// [obs, clip(a), log σ]. Layouts without choices only.
-pub fn action_input(
-    obs: &Tensor,
-    actions: &[f32],
-    log_std: &Tensor,
-    layout: &EnvLayout,
-) -> Result<Tensor> {
-    let (b, c) = (obs.dim(0)?, layout.continuous);
-    debug_assert_eq!(layout.choices, 0);
-    let a: Vec<f32> = actions.iter().map(|v| v.clamp(-1.0, 1.0)).collect();
-    let a = Tensor::from_vec(a, (b, c), obs.device())?;
-    Ok(Tensor::cat(&[obs, &a, log_std], 1)?)
+    Ok(q.to_dtype(DType::F32)?.flatten_all()?.to_vec1()?)
 }
 
 /// The predicted target Δp̃ [B, d]: the PCPN's median change for each row's action.
 pub fn predicted_delta(
     pcpn: &Pcpn,
-    obs: &Tensor,
-    actions: &[f32],
-    log_std: &Tensor,
     layout: &EnvLayout,
+    s: &SignalBatch,
+    dev: &Device,
 ) -> Result<Vec<f32>> {
-    pcpn_quantiles(pcpn, &action_input(obs, actions, log_std, layout)?, &[0.5])
+    let rows: Vec<usize> = (0..s.rows(layout)).collect();
+    pcpn_quantiles(pcpn, &s.inputs(layout, &rows, true, dev)?, &[0.5])
 }
 
 /// Population mean and variance.
@@ -127,13 +103,12 @@ fn snr(v: &[f64]) -> f64 {
     }
 }
 
-/// One batch: the policy's inputs and what happened.
+/// One batch on the host, row-major: the policy's inputs and what happened.
 pub struct SignalBatch<'a> {
-    /// Observations [B, O].
-    pub obs: &'a Tensor,
-    /// Policy means [B, M] and log σ [B, L] (the actions' policy).
-    pub mu: &'a Tensor,
-    pub log_std: &'a Tensor,
+    /// Observations [B, O], policy means [B, M] and log σ [B, L] (the actions' policy).
+    pub obs: &'a [f32],
+    pub mu: &'a [f32],
+    pub log_std: &'a [f32],
     /// Actions taken [B, A], observed Δp [B, d], advantages as trained on [B, d].
     pub actions: &'a [f32],
     pub state_delta: &'a [f32],
@@ -142,37 +117,60 @@ pub struct SignalBatch<'a> {
     pub dmu: Option<&'a [f32]>,
 }
 
+impl SignalBatch<'_> {
+    /// Rows B.
+    fn rows(&self, layout: &EnvLayout) -> usize {
+        self.obs.len() / layout.obs_dim.max(1)
+    }
+
+    /// The PCPN inputs [o, mean, log σ] of `rows`, with the policy's mean or, with
+    /// `taken`, the action taken clipped to [−1, 1] (as the envs clip it) in its place.
+    fn inputs(
+        &self,
+        layout: &EnvLayout,
+        rows: &[usize],
+        taken: bool,
+        dev: &Device,
+    ) -> Result<Tensor> {
+        let (o, m, l) = (layout.obs_dim, layout.mu_dim(), layout.log_std_dim());
+        let mut x = Vec::with_capacity(rows.len() * (o + m + l));
+        for &r in rows {
+            x.extend_from_slice(&self.obs[r * o..(r + 1) * o]);
+            if taken {
+                x.extend(
+                    self.actions[r * m..(r + 1) * m]
+                        .iter()
+                        .map(|v| v.clamp(-1.0, 1.0)),
+                );
+            } else {
+                x.extend_from_slice(&self.mu[r * m..(r + 1) * m]);
+            }
+            x.extend_from_slice(&self.log_std[r * l..(r + 1) * l]);
+        }
+        Ok(Tensor::from_vec(x, (rows.len(), o + m + l), dev)?)
+    }
+}
+
 /// rank_corr, act_share and err_ratio (module docs), on [`SIGNAL_ROWS`] rows; empty for
-/// layouts with a choice. Three PCPN forward passes of a few rows.
+/// layouts with a choice. Two PCPN forward passes of a few rows.
 pub fn rank_stats(
     pcpn: &Pcpn,
     layout: &EnvLayout,
     s: &SignalBatch,
+    dev: &Device,
 ) -> Result<Vec<(&'static str, Vec<f32>)>> {
     if layout.choices > 0 {
         return Ok(Vec::new());
     }
-    let (b, d, c) = (s.obs.dim(0)?, layout.aligned_dim, layout.continuous);
-    let step = b.div_ceil(SIGNAL_ROWS).max(1);
-    let rows: Vec<usize> = (0..b).step_by(step).collect();
-    let dev: &Device = s.obs.device();
-    let pick = |t: &Tensor| -> Result<Tensor> {
-        let idx: Vec<u32> = rows.iter().map(|&r| r as u32).collect();
-        Ok(t.contiguous()?
-            .index_select(&Tensor::new(idx.as_slice(), dev)?, 0)?)
-    };
-    let (obs, mu, log_std) = (pick(s.obs)?, pick(s.mu)?, pick(s.log_std)?);
-    let actions: Vec<f32> = rows
-        .iter()
-        .flat_map(|&r| s.actions[r * c..(r + 1) * c].iter().copied())
-        .collect();
+    let (b, d) = (s.rows(layout), layout.aligned_dim);
+    let rows: Vec<usize> = (0..b).step_by(b.div_ceil(SIGNAL_ROWS).max(1)).collect();
     // The M levels of the rank, then ½ for Δp⁰: [S, d, M + 1].
     let taus: Vec<f32> = (0..SIGNAL_TAUS)
         .map(|m| (m as f32 + 0.5) / SIGNAL_TAUS as f32)
         .chain([0.5])
         .collect();
-    let q = pcpn_quantiles(pcpn, &Tensor::cat(&[&obs, &mu, &log_std], 1)?, &taus)?;
-    let tilde = predicted_delta(pcpn, &obs, &actions, &log_std, layout)?; // [S, d]
+    let q = pcpn_quantiles(pcpn, &s.inputs(layout, &rows, false, dev)?, &taus)?;
+    let tilde = pcpn_quantiles(pcpn, &s.inputs(layout, &rows, true, dev)?, &[0.5])?; // Δp̃ [S, d]
     let per = SIGNAL_TAUS + 1;
     let rank = |row: usize, j: usize, y: f32| -> f64 {
         let qs = &q[(row * d + j) * per..(row * d + j) * per + SIGNAL_TAUS];
@@ -214,35 +212,30 @@ pub fn rank_stats(
 
 /// snr_saver and snr_a2c per continuous action entry (module docs), over the whole
 /// batch, where the update gave its per-row gradient; host arithmetic only.
-pub fn snr_stats(layout: &EnvLayout, s: &SignalBatch) -> Result<Vec<(&'static str, Vec<f32>)>> {
-    let (b, d, c) = (s.obs.dim(0)?, layout.aligned_dim, layout.continuous);
-    let mut out = Vec::new();
-    if let Some(dmu) = s.dmu {
-        let m = layout.mu_dim();
-        let mu: Vec<f32> = s.mu.flatten_all()?.to_vec1()?;
-        let ls: Vec<f32> = s.log_std.flatten_all()?.to_vec1()?;
-        let l = s.log_std.dim(1)?;
-        let (mut snr_saver, mut snr_a2c) = (vec![], vec![]);
-        for i in 0..c {
-            let g: Vec<f64> = (0..b).map(|r| dmu[r * m + i] as f64).collect();
-            let a2c: Vec<f64> = (0..b)
-                .map(|r| {
-                    let sigma = (ls[r * l + i] as f64).exp();
-                    let eps = (s.actions[r * c + i] - mu[r * m + i]) as f64 / sigma;
-                    let adv: f64 = s.advantage[r * d..(r + 1) * d]
-                        .iter()
-                        .map(|&v| v as f64)
-                        .sum();
-                    -eps / sigma * adv
-                })
-                .collect();
-            snr_saver.push(snr(&g) as f32);
-            snr_a2c.push(snr(&a2c) as f32);
-        }
-        out.push(("snr_saver", snr_saver));
-        out.push(("snr_a2c", snr_a2c));
+pub fn snr_stats(layout: &EnvLayout, s: &SignalBatch) -> Vec<(&'static str, Vec<f32>)> {
+    let Some(dmu) = s.dmu else {
+        return Vec::new();
+    };
+    let (b, d, c) = (s.rows(layout), layout.aligned_dim, layout.continuous);
+    let (m, l) = (layout.mu_dim(), layout.log_std_dim());
+    let (mut snr_saver, mut snr_a2c) = (vec![], vec![]);
+    for i in 0..c {
+        let g: Vec<f64> = (0..b).map(|r| dmu[r * m + i] as f64).collect();
+        let a2c: Vec<f64> = (0..b)
+            .map(|r| {
+                let sigma = (s.log_std[r * l + i] as f64).exp();
+                let eps = (s.actions[r * layout.action_dim() + i] - s.mu[r * m + i]) as f64 / sigma;
+                let adv: f64 = s.advantage[r * d..(r + 1) * d]
+                    .iter()
+                    .map(|&v| v as f64)
+                    .sum();
+                -eps / sigma * adv
+            })
+            .collect();
+        snr_saver.push(snr(&g) as f32);
+        snr_a2c.push(snr(&a2c) as f32);
     }
-    Ok(out)
+    vec![("snr_saver", snr_saver), ("snr_a2c", snr_a2c)]
 }
 
 #[cfg(test)]
@@ -266,7 +259,6 @@ mod tests {
     /// snr = (4/3)/√(78/81) = 1.3587324.
     #[test]
     fn snr_stats_by_hand() {
-        let dev = Device::Cpu;
         let layout = EnvLayout {
             obs_dim: 1,
             continuous: 1,
@@ -274,7 +266,7 @@ mod tests {
             aligned_start: 0,
             aligned_dim: 1,
         };
-        let zeros = Tensor::zeros((3, 1), candle_core::DType::F32, &dev).unwrap();
+        let zeros = [0.0f32; 3];
         let s = SignalBatch {
             obs: &zeros,
             mu: &zeros,
@@ -284,7 +276,7 @@ mod tests {
             advantage: &[1.0, 1.0, -1.0],
             dmu: Some(&[1.0, 2.0, 3.0]),
         };
-        let out = snr_stats(&layout, &s).unwrap();
+        let out = snr_stats(&layout, &s);
         assert_eq!(out[0].0, "snr_saver");
         assert!((out[0].1[0] - 4.242_640_7).abs() < 1e-5, "{out:?}");
         assert_eq!(out[1].0, "snr_a2c");

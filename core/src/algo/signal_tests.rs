@@ -8,7 +8,7 @@ use super::*;
 use crate::config::{Algo, DeltaTarget, RunConfig};
 use crate::env::{EnvKind, EnvSpec};
 use crate::rng::rng_for;
-use candle_core::{DType, Device, Tensor};
+use candle_core::{DType, Device};
 
 /// A batch of 8 trajectories × 8 steps of random rows, some actions beyond ±1.
 fn batch(spec: &EnvSpec) -> Batch {
@@ -69,29 +69,30 @@ fn signal_stats_tell_an_exact_pcpn_from_one_whose_error_swamps_the_action() {
     let mut b = batch(&spec);
     let rows = b.len();
     let dev = Device::Cpu;
-    let obs = Tensor::from_slice(&b.obs, (rows, l.obs_dim), &dev).unwrap();
     let mut rng = rng_for(9, 1);
-    let mu = Tensor::from_vec(
-        uniform(&mut rng, rows * l.mu_dim(), -1.0, 1.0),
-        (rows, l.mu_dim()),
-        &dev,
-    )
-    .unwrap();
-    let log_std = Tensor::full(-1.0f32, (rows, l.log_std_dim()), &dev).unwrap();
-    b.state_delta = predicted_delta(&pcpn, &obs, &b.actions, &log_std, &l).unwrap();
+    let mu = uniform(&mut rng, rows * l.mu_dim(), -1.0, 1.0);
+    let log_std = vec![-1.0f32; rows * l.log_std_dim()];
     let advantage = uniform(&mut rng, rows * l.aligned_dim, -1.0, 1.0);
-    let stats = |b: &Batch| {
-        let s = SignalBatch {
-            obs: &obs,
-            mu: &mu,
-            log_std: &log_std,
+    fn signal<'a>(
+        b: &'a Batch,
+        mu: &'a [f32],
+        log_std: &'a [f32],
+        advantage: &'a [f32],
+    ) -> SignalBatch<'a> {
+        SignalBatch {
+            obs: &b.obs,
+            mu,
+            log_std,
             actions: &b.actions,
             state_delta: &b.state_delta,
-            advantage: &advantage,
+            advantage,
             dmu: None,
-        };
-        rank_stats(&pcpn, &l, &s).unwrap()
-    };
+        }
+    }
+    b.state_delta =
+        predicted_delta(&pcpn, &l, &signal(&b, &mu, &log_std, &advantage), &dev).unwrap();
+    let stats =
+        |b: &Batch| rank_stats(&pcpn, &l, &signal(b, &mu, &log_std, &advantage), &dev).unwrap();
     let get =
         |s: &[(&str, Vec<f32>)], name: &str| s.iter().find(|(n, _)| *n == name).unwrap().1.clone();
     let exact = stats(&b);

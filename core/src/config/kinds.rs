@@ -97,7 +97,8 @@ pub enum DeltaTarget {
     /// The observed Δp of the transition (the paper).
     #[default]
     Observed,
-    /// The PCPN's median change for the action taken, at σ₀ (docs/ALGORITHM.md §7.1, `algo::saver_signal`).
+    /// The PCPN's median change for the action taken, at the policy's σ
+    /// (docs/ALGORITHM.md §7.1, `algo::saver_signal`).
     Predicted,
 }
 

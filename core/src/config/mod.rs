@@ -502,19 +502,7 @@ mod tests {
     /// results/fig3-5) keeps the paper's 0, and A2C never has it.
     #[test]
     fn saver_on_a_custom_env_defaults_to_the_saturation_wall() {
-        let layout = crate::env::EnvLayout {
-            obs_dim: 4,
-            continuous: 2,
-            choices: 0,
-            aligned_start: 0,
-            aligned_dim: 2,
-        };
-        let bounds = crate::env::EnvBounds {
-            obs_low: vec![-1.0; 4],
-            obs_high: vec![1.0; 4],
-            max_change: 0.2,
-        };
-        let custom = EnvSpec::custom("pointmass", layout, bounds).unwrap();
+        let custom = EnvSpec::unit_custom("pointmass", 0.2).unwrap();
         let c = RunConfig::recommended(&custom, Algo::Saver, 1);
         assert_eq!(c.saver.mu_raw_penalty, CUSTOM_SAVER_MU_RAW_PENALTY);
         c.validate().unwrap();

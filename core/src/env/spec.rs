@@ -244,6 +244,25 @@ impl EnvSpec {
         }
     }
 
+    /// The smallest custom environment: obs [x, y] in [−1, 1]², one continuous action,
+    /// x the aligned entry, moving by at most `max_change` a step (what `--help`
+    /// resolves a custom env's defaults on, and the tests' stand-in for one).
+    pub fn unit_custom(name: &str, max_change: f32) -> Result<Self> {
+        let layout = EnvLayout {
+            obs_dim: 2,
+            continuous: 1,
+            choices: 0,
+            aligned_start: 0,
+            aligned_dim: 1,
+        };
+        let bounds = EnvBounds {
+            obs_low: vec![-1.0; 2],
+            obs_high: vec![1.0; 2],
+            max_change,
+        };
+        Self::custom(name, layout, bounds)
+    }
+
     /// A user's environment: `name` (letters, digits, `_`, `.`, `-`; not a preset's),
     /// its layout and bounds, all checked.
     pub fn custom(name: &str, layout: EnvLayout, bounds: EnvBounds) -> Result<Self> {

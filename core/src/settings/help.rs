@@ -3,7 +3,7 @@
 
 use super::{dotted, DEFAULT_STEPS};
 use crate::config::{Algo, RunConfig, HIGH_DIM_ANGLE};
-use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
+use crate::env::{EnvKind, EnvSpec};
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
@@ -45,19 +45,7 @@ fn defaults() -> &'static Defaults {
             Algo::Saver,
             DEFAULT_STEPS,
         ));
-        let layout = EnvLayout {
-            obs_dim: 2,
-            continuous: 1,
-            choices: 0,
-            aligned_start: 0,
-            aligned_dim: 1,
-        };
-        let bounds = EnvBounds {
-            obs_low: vec![-1.0; 2],
-            obs_high: vec![1.0; 2],
-            max_change: 1.0,
-        };
-        let custom = EnvSpec::custom("custom", layout, bounds).expect("a custom env");
+        let custom = EnvSpec::unit_custom("custom", 1.0).expect("a custom env");
         let custom = dotted(&RunConfig::recommended(&custom, Algo::Saver, DEFAULT_STEPS));
         Defaults {
             high_dim,
