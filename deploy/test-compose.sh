@@ -65,7 +65,7 @@ echo "   $n actor registrations read the weights from the shared volume"
 # Prometheus, as a scraper sees it from the host (bash's /dev/tcp: no curl needed).
 scrape() {
   exec 3<>"/dev/tcp/127.0.0.1/$1"
-  printf 'GET /metrics HTTP/1.1\r\nHost: saver\r\n\r\n' >&3
+  printf 'GET /metrics HTTP/1.1\r\nHost: saver\r\nAuthorization: Bearer %s\r\n\r\n' "$SAVER_TOKEN" >&3
   cat <&3
   exec 3<&-
 }

@@ -70,7 +70,8 @@ pub fn family_from_wire(
             Ok(Arc::new(crate::nets::QuantileFamily::new(layout, spread)?))
         }
         other => Err(crate::CoreError::Config(format!(
-            "policy family {other:?} is not one this build knows (gaussian-mlp, quantile-mlp)"
+            "policy family {:?} is not one this build knows (gaussian-mlp, quantile-mlp)",
+            crate::clip_text(other)
         ))),
     }
 }

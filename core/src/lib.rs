@@ -25,6 +25,7 @@ pub mod settings;
 pub mod wire;
 
 pub use error::{CoreError, Result};
+pub use saver_proto::clip_text;
 
 /// The device updates run on: the first CUDA GPU when built with the `cuda` feature and
 /// one is present, else the CPU.

@@ -3,7 +3,7 @@
 //! its declared sizes (the learner then checks it against the env layout).
 
 use crate::config::{Algo, PretrainConfig};
-use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
+use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec, SuccessRule};
 use crate::link::ActorSettings;
 use crate::rollout::{Episode, Rollout};
 use crate::{CoreError, Result};
@@ -28,6 +28,8 @@ impl From<&EnvLayout> for pb::EnvLayout {
 impl From<&EnvSpec> for pb::EnvSpec {
     fn from(s: &EnvSpec) -> Self {
         let b = s.bounds();
+        // A preset's rule is its kind's: only a custom env's travels.
+        let rule = s.kind().is_none().then(|| s.success_rule()).flatten();
         Self {
             kind: s.name().to_string(),
             dim: s.dim() as u32,
@@ -37,6 +39,8 @@ impl From<&EnvSpec> for pb::EnvSpec {
                 obs_high: b.obs_high,
                 max_change: b.max_change,
             }),
+            success_radius: rule.map_or(0.0, |r| r.radius),
+            goal_start: rule.and_then(|r| r.goal_start.map(|g| g as u32)),
         }
     }
 }
@@ -134,10 +138,17 @@ impl TryFrom<&pb::EnvSpec> for EnvSpec {
                 let (Some(layout), Some(bounds)) = (layout, bounds) else {
                     return Err(CoreError::Config(format!(
                         "env {:?} is no preset: send its layout and bounds",
-                        s.kind
+                        crate::clip_text(&s.kind)
                     )));
                 };
-                let spec = EnvSpec::custom(&s.kind, layout, bounds)?;
+                let success = match (s.success_radius, s.goal_start) {
+                    (0.0, None) => None,
+                    (radius, goal_start) => Some(SuccessRule {
+                        radius,
+                        goal_start: goal_start.map(|g| g as usize),
+                    }),
+                };
+                let spec = EnvSpec::custom(&s.kind, layout, bounds)?.with_success(success)?;
                 if spec.dim() != s.dim as usize {
                     return Err(CoreError::Config(format!(
                         "env {:?}: dim {} is not the layout's aligned_dim {}",
@@ -303,7 +314,14 @@ mod tests {
             },
         )
         .unwrap();
-        for spec in [&angle, &custom] {
+        let with_goal = custom
+            .clone()
+            .with_success(Some(SuccessRule {
+                radius: 0.05,
+                goal_start: Some(0),
+            }))
+            .unwrap();
+        for spec in [&angle, &custom, &with_goal] {
             let back = EnvSpec::try_from(&pb::EnvSpec::from(spec)).unwrap();
             assert_eq!(&back, spec);
         }

@@ -138,12 +138,13 @@ impl Drop for Leave {
 }
 
 fn link_status(e: LinkError) -> Status {
+    let cut = |why: String| saver_proto::clip_chars(&why, saver_proto::MAX_STATUS_CHARS);
     match e {
-        LinkError::Closed(why) => Status::unavailable(why),
-        LinkError::Finished(why) => Status::out_of_range(why),
-        LinkError::Rejected(why) => Status::invalid_argument(why),
-        LinkError::Mismatch(why) => Status::failed_precondition(why),
-        LinkError::TooLarge(why) => Status::resource_exhausted(why),
+        LinkError::Closed(why) => Status::unavailable(cut(why)),
+        LinkError::Finished(why) => Status::out_of_range(cut(why)),
+        LinkError::Rejected(why) => Status::invalid_argument(cut(why)),
+        LinkError::Mismatch(why) => Status::failed_precondition(cut(why)),
+        LinkError::TooLarge(why) => Status::resource_exhausted(cut(why)),
     }
 }
 
@@ -299,7 +300,7 @@ impl Learner for LearnerService {
         }
         let hub = self.hub.clone();
         let reg = Registration {
-            name: r.name.chars().take(128).collect(),
+            name: saver_proto::clip_text(&r.name),
             session: r.session,
             n_envs: r.n_envs,
         };
@@ -522,13 +523,21 @@ pub async fn serve(
         .await
 }
 
-/// Refuses an actor whose declared env is not the run's, saying what differs.
+/// Refuses an actor whose declared env is not the run's, saying what differs. A
+/// success rule only one side declares is no difference (the run's, if any, is the
+/// one the learner checks episodes by); two that differ are.
 fn check_actor_env(env: &pb::EnvSpec, run: &EnvSpec) -> Result<(), Status> {
     let theirs = EnvSpec::try_from(env).map_err(|e| {
         Status::invalid_argument(format!("the env this actor declares is not valid: {e}"))
     })?;
-    if &theirs == run {
-        return Ok(());
+    if theirs.dynamics() == run.dynamics() {
+        return match (theirs.success_rule(), run.success_rule()) {
+            (Some(a), Some(b)) if a != b => Err(Status::invalid_argument(format!(
+                "this actor's env {theirs} is the run's, but its success rule {a:?} is not \
+                 the run's {b:?}"
+            ))),
+            _ => Ok(()),
+        };
     }
     let (a, b) = (theirs.layout(), run.layout());
     let why = if theirs.name() != run.name() {

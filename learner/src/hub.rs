@@ -1,7 +1,7 @@
 //! The meeting point of actors and the trainer thread: registrations, the bounded
 //! rollout queue and the newest published weights.
 
-use crate::ledger::Ledger;
+use crate::ledger::{EpisodeRules, Ledger};
 use crate::warn::RateLimited;
 use saver_core::config::RunConfig;
 use saver_core::env::EnvLayout;
@@ -81,6 +81,8 @@ pub struct Hub {
     limits: RolloutLimits,
     /// Refused rollouts, logged a few at a time.
     refusals: RateLimited,
+    /// What every rollout's episodes and positions must agree with.
+    rules: EpisodeRules,
     /// Registrations, weights, closed flag.
     state: Mutex<State>,
     /// Signalled on every publish, registration and close.
@@ -124,6 +126,11 @@ impl Hub {
                 saver_core::algo::policy_family(&config),
             ),
             refusals: RateLimited::default(),
+            rules: EpisodeRules {
+                max_len: config.max_episode_steps,
+                layout: config.env.layout(),
+                success: config.env.success_rule(),
+            },
             config,
             state: Mutex::new(State {
                 actors: BTreeMap::new(),
@@ -501,9 +508,7 @@ impl Hub {
         r.validate(&self.layout, self.settings.policy.payload_width())
             .map_err(rejected)?;
         self.limits.check(r).map_err(rejected)?;
-        ledger
-            .check(r, self.config.max_episode_steps)
-            .map_err(rejected)
+        ledger.check(r, &self.rules).map_err(rejected)
     }
 
     /// The newest weights.

@@ -5,6 +5,7 @@
 //! [`InProcessLink`]; the gRPC service ([`grpc`]) reaches the same hub over the network.
 //! [`checkpoint`] saves the learner and resumes a run.
 
+pub mod best;
 pub mod checkpoint;
 pub mod grpc;
 mod hub;

@@ -2,6 +2,7 @@
 //! current version, batched in actor-id order), updates, publishes, logs, checkpoints.
 //! It blocks on std primitives and never runs on an async runtime.
 
+use crate::best::{Evaluator, PolicyFiles};
 use crate::checkpoint::{save, ActorStates, Counters, RunState, CHECKPOINT_FILE};
 use crate::metrics::{MetricsCsv, MetricsRow};
 use crate::warn::RateLimited;
@@ -61,6 +62,12 @@ pub struct TrainerOptions {
     /// Where the run starts: from zero, or where a resumed checkpoint left it (see
     /// [`crate::resume`]): counters, in-process actors, episode window.
     pub start: RunState,
+    /// Evaluates the policy every `eval_every` updates and at the end, keeping
+    /// best.safetensors ([`crate::best`]); `None`: no evaluation (a custom env, which
+    /// only its actors can step).
+    pub evaluator: Option<Evaluator>,
+    /// Updates between evaluations.
+    pub eval_every: u64,
 }
 
 impl TrainerOptions {
@@ -72,6 +79,8 @@ impl TrainerOptions {
             stop,
             checkpoint_every: 0,
             start: RunState::default(),
+            evaluator: None,
+            eval_every: 0,
         }
     }
 }
@@ -82,17 +91,23 @@ pub fn spawn_trainer(
     algo: Box<dyn Algorithm>,
     hub: Arc<Hub>,
     rx: Receiver<Rollout>,
-    opts: TrainerOptions,
+    mut opts: TrainerOptions,
 ) -> std::io::Result<TrainerHandle> {
     let join = std::thread::Builder::new()
         .name("saver-trainer".into())
         .spawn(move || {
+            let files = PolicyFiles::new(
+                &opts.run_dir,
+                saver_core::link::weights_metadata(hub.config()),
+                opts.evaluator.take(),
+            );
             let res = Trainer {
                 algo,
                 hub: hub.clone(),
                 rx,
                 stop: opts.stop.clone(),
                 late: BTreeSet::new(),
+                files,
             }
             .run(&opts);
             match &res {
@@ -113,6 +128,8 @@ struct Trainer {
     /// Sync mode: actors that missed a round's deadline; rounds stop waiting for them
     /// until they send again.
     late: BTreeSet<u32>,
+    /// policy.safetensors, best.safetensors and eval.csv.
+    files: PolicyFiles,
 }
 
 /// The rollouts of one update and their policy lag.
@@ -256,10 +273,19 @@ impl Trainer {
             }));
             if opts.checkpoint_every > 0 && c.version.is_multiple_of(opts.checkpoint_every) {
                 save_to(self.algo.as_ref(), &c, &actors, &window)?;
+                // The newest weights beside it, for any client.
+                self.files.save_newest(&self.hub.latest())?;
+            }
+            if opts.eval_every > 0 && c.version.is_multiple_of(opts.eval_every) {
+                self.files.evaluate(c.steps, self.hub.latest())?;
             }
         }
         c.wall_ms = ((wall_before + start.elapsed().as_secs_f64()) * 1000.0).round() as u64;
         save_to(self.algo.as_ref(), &c, &actors, &window)?;
+        self.files.save_newest(&self.hub.latest())?;
+        if c.version > 0 {
+            self.files.evaluate(c.steps, self.hub.latest())?;
+        }
         Ok(TrainerOutcome {
             version: c.version,
             steps: c.steps,

@@ -31,6 +31,9 @@ pub const QUEUED_CHUNKS: u64 = 8;
 pub const SHUFFLE: usize = 65_536;
 /// How often a waiting pretraining says what it waits for.
 const SAY_EVERY: Duration = Duration::from_secs(30);
+/// How long a pretraining waits for its next samples unless told otherwise
+/// (`saver pcpn-trainer --pretrain-deadline`).
+pub const DEFAULT_DEADLINE: Duration = Duration::from_secs(30 * 60);
 
 /// What the pretraining in progress wants.
 struct Want {
@@ -65,19 +68,28 @@ pub struct SampleHub {
     arrived: Condvar,
     /// Work may be there (wakes the providers' tasks).
     work: tokio::sync::watch::Sender<u64>,
+    /// How long a pretraining waits for its next samples before it fails.
+    deadline: Duration,
 }
 
 impl Default for SampleHub {
     fn default() -> Self {
-        Self {
-            state: Mutex::default(),
-            arrived: Condvar::new(),
-            work: tokio::sync::watch::channel(0).0,
-        }
+        Self::with_deadline(DEFAULT_DEADLINE)
     }
 }
 
 impl SampleHub {
+    /// A hub whose pretraining fails when no samples arrive for `deadline` (at the
+    /// start, or after the last ones).
+    pub fn with_deadline(deadline: Duration) -> Self {
+        Self {
+            state: Mutex::default(),
+            arrived: Condvar::new(),
+            work: tokio::sync::watch::channel(0).0,
+            deadline,
+        }
+    }
+
     fn lock(&self) -> MutexGuard<'_, HubState> {
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
@@ -91,7 +103,7 @@ impl SampleHub {
         self.lock()
             .providers
             .iter()
-            .filter(|(_, s)| s == spec)
+            .filter(|(_, s)| *s == spec.dynamics())
             .count()
     }
 
@@ -150,6 +162,8 @@ impl SampleHub {
     /// A source of `total` streamed samples of `spec` (refused while another
     /// pretraining waits for samples), drawn through a shuffle buffer seeded by `seed`.
     pub fn source(self: &Arc<Self>, spec: &EnvSpec, total: u64, seed: u64) -> Result<Streamed> {
+        // Providers are matched on what the PCPN models (their specs are stored so).
+        let spec = &spec.dynamics();
         let mut s = self.lock();
         if let Some(w) = &s.want {
             return Err(CoreError::Config(format!(
@@ -182,30 +196,42 @@ impl SampleHub {
     }
 
     /// The next chunk of samples for the pretraining of `spec`; waits (saying so every
-    /// 30 s) until one arrives.
-    fn next_chunk(&self, spec: &EnvSpec) -> Samples {
+    /// 30 s) until one arrives, and fails when none has for the hub's deadline.
+    fn next_chunk(&self, spec: &EnvSpec) -> Result<Samples> {
         let mut s = self.lock();
-        let mut said = Instant::now();
+        let (since, mut said) = (Instant::now(), Instant::now());
         loop {
             if let Some(chunk) = s.want.as_mut().and_then(|w| w.queued.pop_front()) {
                 drop(s);
                 self.wake_providers();
-                return chunk;
+                return Ok(chunk);
+            }
+            let left = self.deadline.saturating_sub(since.elapsed());
+            let providers = s.providers.iter().filter(|(_, p)| p == spec).count();
+            let (got, of) = s.want.as_ref().map_or((0, 0), |w| (w.received, w.total));
+            if left.is_zero() {
+                return Err(CoreError::Config(format!(
+                    "pretraining {spec}: no samples arrived for {:?} ({providers} sample \
+                     providers connected; {got} of {of} samples arrived). It waits for the \
+                     env's actors to stream samples: start them with --pcpn-samples at this \
+                     store's address (Python: saver-actor act --pcpn-samples URL), or give \
+                     the store more time with --pretrain-deadline",
+                    self.deadline
+                )));
+            }
+            if said.elapsed() >= SAY_EVERY {
+                said = Instant::now();
+                tracing::info!(
+                    "pretraining {spec}: waiting for samples from actors ({providers} \
+                     providers connected; {got} of {of} samples arrived; giving up in {:.0} s)",
+                    left.as_secs_f64()
+                );
             }
             s = self
                 .arrived
-                .wait_timeout(s, Duration::from_secs(1))
+                .wait_timeout(s, left.min(Duration::from_secs(1)))
                 .unwrap_or_else(|p| p.into_inner())
                 .0;
-            if said.elapsed() >= SAY_EVERY {
-                said = Instant::now();
-                let providers = s.providers.iter().filter(|(_, p)| p == spec).count();
-                let (got, of) = s.want.as_ref().map_or((0, 0), |w| (w.received, w.total));
-                tracing::info!(
-                    "pretraining {spec}: waiting for samples from actors ({providers} \
-                     providers connected; {got} of {of} samples arrived)"
-                );
-            }
         }
     }
 
@@ -236,8 +262,9 @@ impl Drop for Streamed {
 }
 
 impl Streamed {
-    /// The next arrived sample (x row, delta row), if any is left.
-    fn next_row(&mut self) -> Option<(Vec<f32>, Vec<f32>)> {
+    /// The next arrived sample (x row, delta row), if any is left; fails when the
+    /// providers stopped giving them ([`SampleHub::next_chunk`]).
+    fn next_row(&mut self) -> Result<Option<(Vec<f32>, Vec<f32>)>> {
         let l = self.spec.layout();
         let (xw, d) = (l.pcpn_input_dim(), l.aligned_dim);
         loop {
@@ -245,18 +272,18 @@ impl Streamed {
                 if *at < chunk.n {
                     let i = *at;
                     *at += 1;
-                    return Some((
+                    return Ok(Some((
                         chunk.x[i * xw..(i + 1) * xw].to_vec(),
                         chunk.delta[i * d..(i + 1) * d].to_vec(),
-                    ));
+                    )));
                 }
                 self.pending.pop_front();
                 continue;
             }
             if self.left == 0 {
-                return None;
+                return Ok(None);
             }
-            let chunk = self.hub.next_chunk(&self.spec);
+            let chunk = self.hub.next_chunk(&self.spec)?;
             self.left = self.left.saturating_sub(chunk.n as u64);
             self.pending.push_back((chunk, 0));
         }
@@ -271,7 +298,7 @@ impl Streamed {
             n: 0,
         };
         while s.n < n {
-            let (x, d) = self.next_row().ok_or_else(|| exhausted(n))?;
+            let (x, d) = self.next_row()?.ok_or_else(|| exhausted(n))?;
             s.x.extend(x);
             s.delta.extend(d);
             s.n += 1;
@@ -299,7 +326,7 @@ impl SampleSource for Streamed {
         let l = self.spec.layout();
         let (xw, d) = (l.pcpn_input_dim(), l.aligned_dim);
         while self.buffer.n < SHUFFLE {
-            let Some((x, dl)) = self.next_row() else {
+            let Some((x, dl)) = self.next_row()? else {
                 break;
             };
             self.buffer.x.extend(x);
@@ -321,7 +348,7 @@ impl SampleSource for Streamed {
             out.delta
                 .extend_from_slice(&self.buffer.delta[i * d..(i + 1) * d]);
             // The slot takes the next arrival, or the buffer's last sample.
-            let (x, dl) = match self.next_row() {
+            let (x, dl) = match self.next_row()? {
                 Some(row) => row,
                 None => {
                     let last = self.buffer.n - 1;
@@ -463,7 +490,7 @@ pub async fn provide(
     let invalid = |e: &dyn std::fmt::Display| tonic::Status::invalid_argument(e.to_string());
     let spec = match inbound.next().await {
         Some(Ok(hello)) => match hello.env.as_ref().map(EnvSpec::try_from) {
-            Some(Ok(spec)) if spec.kind().is_none() => spec,
+            Some(Ok(spec)) if spec.kind().is_none() => spec.dynamics(),
             Some(Ok(spec)) => {
                 let msg = format!("{spec} is a built-in env: the store samples it itself");
                 let _ = tx.send(Err(tonic::Status::invalid_argument(msg))).await;
@@ -548,6 +575,24 @@ mod tests {
             log_std: vec![-1.0; n as usize],
             delta: (from..from + n).map(|i| i as f32 * 1e-5).collect(),
         }
+    }
+
+    /// A pretraining that no provider feeds fails after the deadline, saying what it
+    /// waited for; samples that keep arriving keep it going.
+    #[test]
+    fn a_pretraining_nobody_feeds_ends_at_its_deadline() {
+        let hub = Arc::new(SampleHub::with_deadline(Duration::from_millis(50)));
+        let s = spec();
+        let mut source = hub.source(&s, 2_000, 7).unwrap();
+        hub.deliver(&s, check_batch(&s, &batch(0, 1_000), 1_000).unwrap());
+        assert_eq!(source.held_out(1_000).unwrap().samples.n, 1_000);
+        let e = source.held_out(1).err().unwrap().to_string();
+        assert!(
+            e.contains("no samples arrived")
+                && e.contains("0 sample providers connected; 1000 of 2000")
+                && e.contains("--pretrain-deadline"),
+            "{e}"
+        );
     }
 
     #[test]

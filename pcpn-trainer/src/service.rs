@@ -63,7 +63,7 @@ fn wanted(
     let settings = settings
         .ok_or_else(|| Status::invalid_argument("settings (PretrainSettings) are required"))?;
     Ok((
-        EnvSpec::try_from(env).map_err(invalid)?,
+        EnvSpec::try_from(env).map_err(invalid)?.dynamics(),
         PretrainConfig::try_from(settings).map_err(invalid)?,
     ))
 }
@@ -79,6 +79,12 @@ impl PcpnService {
             access: Access::default(),
             samples: Arc::default(),
         }
+    }
+
+    /// A pretraining from streamed samples fails when none arrive for `deadline`.
+    pub fn with_sample_deadline(mut self, deadline: std::time::Duration) -> Self {
+        self.samples = Arc::new(SampleHub::with_deadline(deadline));
+        self
     }
 
     /// The tonic server with the message size limits set.

@@ -145,7 +145,7 @@ impl PcpnStore {
         meta.insert("format".into(), FORMAT.into());
         meta.insert(
             "env_spec".into(),
-            serde_json::to_string(spec).unwrap_or_default(),
+            serde_json::to_string(&spec.dynamics()).unwrap_or_default(),
         );
         meta.insert("env".into(), spec.to_string());
         meta.insert(
@@ -250,7 +250,7 @@ pub fn check_pcpn_bytes(
         .ok_or_else(|| meta_err("no env_spec in metadata: not a SAVER PCPN file"))?;
     let spec: EnvSpec = serde_json::from_str(spec_json)
         .map_err(|e| meta_err(&format!("env_spec {spec_json:?} is unreadable: {e}")))?;
-    if spec != *wanted {
+    if spec.dynamics() != wanted.dynamics() {
         return Err(StoreError::SpecMismatch {
             path: shown,
             found: spec.to_string(),

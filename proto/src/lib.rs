@@ -168,6 +168,28 @@ pub fn read_metadata(mut file: impl std::io::Read) -> Result<HashMap<String, Str
         .ok_or_else(|| bad("__metadata__ is not an object".into()))
 }
 
+/// Longest client-supplied text an error message repeats, in characters.
+pub const ECHO_CHARS: usize = 64;
+
+/// `text` as an error message may repeat it: its first [`ECHO_CHARS`] characters and
+/// "…" when it is longer, so that no client can make a refusal larger than the status
+/// it travels in (gRPC metadata is capped at a few KiB).
+pub fn clip_text(text: &str) -> String {
+    clip_chars(text, ECHO_CHARS)
+}
+
+/// Longest status message a server sends, in characters (a backstop behind
+/// [`clip_text`]: gRPC carries the message in metadata, capped at a few KiB).
+pub const MAX_STATUS_CHARS: usize = 1024;
+
+/// The first `n` characters of `text`, and "…" when it is longer.
+pub fn clip_chars(text: &str, n: usize) -> String {
+    match text.char_indices().nth(n) {
+        None => text.to_string(),
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+    }
+}
+
 /// Lower-case hex sha256 of bytes.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     let digest = Sha256::digest(bytes);
@@ -192,6 +214,19 @@ fn f32_bytes_mut(data: &mut [f32]) -> &mut [u8] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// 64 characters pass whole; 65 (or 1 MiB) are cut to 64 and "…"; a cut never
+    /// splits a character (ü is 2 bytes).
+    #[test]
+    fn echoed_text_is_cut_at_64_characters() {
+        let exact = "a".repeat(64);
+        assert_eq!(clip_text(&exact), exact);
+        assert_eq!(clip_text(&"a".repeat(65)), format!("{exact}…"));
+        let huge = "ü".repeat(1 << 20);
+        let cut = clip_text(&huge);
+        assert_eq!(cut.chars().count(), 65);
+        assert!(cut.starts_with("üü") && cut.ends_with('…'));
+    }
 
     #[test]
     fn round_trip_keeps_values_shapes_and_metadata() {

@@ -8,8 +8,8 @@ provide_samples feed the pcpn-trainer the transitions its PCPN is pretrained on.
 """
 from .actor import Actor, Connection, LinkLost, Refused, RunFinished, Summary
 from .env import EnvDecl, EnvError
-from .policy import Gaussian, Quantile, policy_for
+from .policy import Gaussian, Policy, Quantile, policy_for
 from .samples import provide_samples
 
-__all__ = ["Actor", "Connection", "EnvDecl", "EnvError", "Gaussian", "LinkLost", "Quantile", "Refused",
+__all__ = ["Actor", "Connection", "EnvDecl", "EnvError", "Gaussian", "LinkLost", "Policy", "Quantile", "Refused",
            "RunFinished", "Summary", "policy_for", "provide_samples"]

@@ -92,6 +92,8 @@ class EnvDecl:
             if g.start is None or g.stop is None or g.stop - g.start != self.dim or not (0 <= g.start and g.stop <= n):
                 raise EnvError(f"{self.name}: goal entries {g.start}:{g.stop} must be {self.dim} entries inside the "
                                f"observation, as many as the aligned ones")
+        if self.success_radius is not None and not (math.isfinite(self.success_radius) and self.success_radius > 0):
+            raise EnvError(f"{self.name}: success_radius {self.success_radius} must be finite and > 0")
         if not (math.isfinite(self.max_change) and self.max_change > 0):
             raise EnvError(f"{self.name}: max_change {self.max_change} must be finite and > 0")
         if self.continuous < 0 or self.choices < 0 or self.continuous + self.choices == 0:
@@ -133,14 +135,21 @@ class EnvDecl:
 
     # ---- the wire form -------------------------------------------------------------
     def spec(self) -> "pb.EnvSpec":
+        """The env as saver.proto's EnvSpec; with a success radius, the success rule the
+        learner checks each success flag by."""
         a = self.aligned
-        return pb.EnvSpec(
+        spec = pb.EnvSpec(
             kind=self.name, dim=self.dim,
             layout=pb.EnvLayout(obs_dim=self.obs_dim, continuous=self.continuous, choices=self.choices,
                                 aligned_start=a.start, aligned_dim=self.dim),
             bounds=pb.EnvBounds(obs_low=self.obs_low.astype(np.float32).tolist(),
                                 obs_high=self.obs_high.astype(np.float32).tolist(),
                                 max_change=float(np.float32(self.max_change))))
+        if self.success_radius is not None:
+            spec.success_radius = float(np.float32(self.success_radius))
+            if self.goal is not None:
+                spec.goal_start = self.goal.start
+        return spec
 
     def check_run(self, run: "pb.EnvSpec") -> None:
         """Refuses a learner whose env is not this one, saying what differs."""
@@ -153,6 +162,13 @@ class EnvDecl:
         if run.bounds != mine.bounds:
             raise EnvError(f"env {mine.kind}: the learner's bounds are not this actor's; copy the actor's "
                            f"declaration (python -m saver_actor describe ...) into the learner's config")
+        # A rule only one side declares is no conflict (the learner checks by its own).
+        if run.success_radius and mine.success_radius and (
+                run.success_radius != mine.success_radius or run.HasField("goal_start") != mine.HasField("goal_start")
+                or run.goal_start != mine.goal_start):
+            raise EnvError(f"env {mine.kind}: the learner's success rule (radius {run.success_radius}) is not this "
+                           f"actor's (radius {mine.success_radius}); copy the actor's declaration into the "
+                           f"learner's config")
 
     def toml(self) -> str:
         """The learner's `[env]` section for this env (saver learner --config FILE)."""
@@ -162,7 +178,14 @@ class EnvDecl:
         return (f'[env]\nname = "{self.name}"\n\n[env.layout]\nobs_dim = {self.obs_dim}\n'
                 f"continuous = {self.continuous}\nchoices = {self.choices}\n"
                 f"aligned_start = {self.aligned.start}\naligned_dim = {self.dim}\n\n"
-                f"[env.bounds]\nobs_low = [{low}]\nobs_high = [{high}]\nmax_change = {f(self.max_change)}\n")
+                f"[env.bounds]\nobs_low = [{low}]\nobs_high = [{high}]\nmax_change = {f(self.max_change)}\n"
+                + self._success_toml(f))
+
+    def _success_toml(self, f) -> str:
+        if self.success_radius is None:
+            return ""
+        goal = "" if self.goal is None else f"goal_start = {self.goal.start}\n"
+        return f"\n[env.success]\nradius = {f(self.success_radius)}\n{goal}"
 
     # ---- steps (batched over envs: arrays [E, ...]) -----------------------------------
     def check_obs(self, obs: np.ndarray, where: str) -> None:

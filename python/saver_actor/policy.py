@@ -14,7 +14,12 @@ Payload per step: tau.
 """
 from __future__ import annotations
 
+import json
 import math
+import os
+import struct
+from types import SimpleNamespace
+from typing import Any, Optional, Tuple, Union
 
 import numpy as np
 
@@ -128,3 +133,108 @@ def policy_for(family: str, tensors: dict, layout, params: dict):
     except KeyError:
         raise ValueError(f"policy family {family!r} is not known to this saver-actor ({', '.join(FAMILIES)})") from None
     return cls(tensors, layout, params)
+
+
+def _metadata(raw: bytes) -> dict:
+    """The `__metadata__` of safetensors bytes (an 8-byte little-endian header length,
+    then the JSON header)."""
+    if len(raw) < 8:
+        raise ValueError("not a safetensors file: shorter than its 8-byte header length")
+    (n,) = struct.unpack("<Q", raw[:8])
+    if n > len(raw) - 8:
+        raise ValueError(f"not a safetensors file: a header of {n} bytes in {len(raw)}")
+    try:
+        header = json.loads(raw[8:8 + n])
+    except ValueError as e:
+        raise ValueError(f"not a safetensors file: its header is not JSON ({e})") from None
+    return dict(header.get("__metadata__") or {})
+
+
+class Policy:
+    """A trained policy of any SAVER run (A2C, SAVER or QRRL; continuous actions, a
+    choice, or both), loaded from the learner's weights and evaluated in numpy.
+
+        policy = Policy.load("runs/.../weights.safetensors")   # or the bytes
+        action, _ = policy.predict(obs, deterministic=True)
+
+    The weights file describes itself (format saver-policy/1: the env layout, the
+    policy family and its parameters), so nothing else is needed. Actions come in the
+    agent's layout: the continuous values clipped to [-1, 1] as the env applies them,
+    then the choice as a one-hot; `env_action(action, space)` maps them to a
+    Gymnasium env's Box (scaled) or Discrete (an index).
+    """
+
+    FORMAT = "saver-policy/1"
+
+    def __init__(self, net: Any, metadata: dict, version: Optional[int] = None):
+        self.net = net
+        self.metadata = metadata
+        self.version = version
+        self.layout = SimpleNamespace(**json.loads(metadata["layout"]))
+
+    @classmethod
+    def load(cls, source: Union[str, "os.PathLike[str]", bytes]) -> "Policy":
+        """A policy from a weights file's path or its bytes (`saver weights --out`,
+        a run folder's weights, GetWeights' `safetensors`)."""
+        from safetensors.numpy import load as load_safetensors
+
+        if isinstance(source, (bytes, bytearray, memoryview)):
+            raw, where = bytes(source), "the weights bytes"
+        else:
+            where = os.fspath(source)
+            with open(where, "rb") as f:
+                raw = f.read()
+        meta = _metadata(raw)
+        if meta.get("format") != cls.FORMAT:
+            raise ValueError(f"{where}: not a SAVER policy (format {meta.get('format')!r}, expected {cls.FORMAT!r}); "
+                             f"a PCPN or checkpoint file is no policy")
+        missing = [k for k in ("layout", "policy_family", "policy_params") if k not in meta]
+        if missing:
+            raise ValueError(f"{where}: the metadata lacks {', '.join(missing)}")
+        layout = SimpleNamespace(**json.loads(meta["layout"]))
+        # JSON has no infinity: an unbounded parameter (mu_bound, a log sigma clamp) is null.
+        params = {k: (-math.inf if k.endswith("_min") else math.inf) if v is None else v
+                  for k, v in json.loads(meta["policy_params"]).items()}
+        net = policy_for(meta["policy_family"], load_safetensors(raw), layout, params)
+        version = int(meta["version"]) if str(meta.get("version", "")).isdigit() else None
+        return cls(net, meta, version)
+
+    @property
+    def family(self) -> str:
+        return str(self.net.family)
+
+    def predict(self, obs: np.ndarray, deterministic: bool = True,
+                rng: Optional[np.random.Generator] = None) -> Tuple[np.ndarray, None]:
+        """(actions, None) for one observation [obs_dim] or a batch [N, obs_dim], as
+        Stable-Baselines3's predict: deterministic is the policy's mean (a Gaussian's
+        mu, the quantile network's median, the most likely choice); otherwise a draw
+        from `rng` (default: a fresh generator)."""
+        o = np.asarray(obs, dtype=np.float32)
+        single = o.ndim == 1
+        batch = o[None] if single else o
+        if batch.ndim != 2 or batch.shape[1] != self.layout.obs_dim:
+            raise ValueError(f"observations of shape {o.shape}; this policy takes [{self.layout.obs_dim}] or "
+                             f"[N, {self.layout.obs_dim}]")
+        if deterministic:
+            a = self.net.deterministic(batch)
+        else:
+            a, _ = self.net.act(batch, rng if rng is not None else np.random.default_rng())
+        a = np.array(a, dtype=np.float32)
+        c = self.layout.continuous
+        a[:, :c] = np.clip(a[:, :c], -1.0, 1.0)
+        return (a[0] if single else a), None
+
+    def env_action(self, action: np.ndarray, space) -> Any:
+        """`action` (one, from predict) as a Gymnasium env takes it: a Box's values
+        scaled from [-1, 1] to its bounds, a Discrete's index."""
+        import gymnasium as gym
+
+        a = np.asarray(action, dtype=np.float32)
+        c = self.layout.continuous
+        if isinstance(space, gym.spaces.Discrete):
+            return int(np.argmax(a[c:]))
+        if not isinstance(space, gym.spaces.Box):
+            raise ValueError(f"action space {space} is neither a Box nor a Discrete")
+        low, high = space.low.reshape(-1), space.high.reshape(-1)
+        scaled = low + (a[:c] + 1.0) * 0.5 * (high - low)
+        return scaled.astype(space.dtype).reshape(space.shape)

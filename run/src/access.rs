@@ -141,4 +141,20 @@ impl ServerAccess {
             tls,
         })
     }
+
+    /// The access settings of a metrics endpoint on `addr`: the same token, TLS
+    /// identity and rule as the gRPC port ([`crate::prometheus::MetricsAccess`]).
+    pub fn metrics(&self, addr: SocketAddr) -> Result<crate::prometheus::MetricsAccess> {
+        let token = self.token.token()?;
+        let pem = match (&self.tls_cert, &self.tls_key) {
+            (Some(cert), Some(key)) => Some((read(cert, "certificate")?, read(key, "key")?)),
+            _ => None,
+        };
+        crate::prometheus::MetricsAccess::new(
+            addr,
+            token.as_deref(),
+            pem.as_ref().map(|(c, k)| (c.as_slice(), k.as_slice())),
+            self.insecure,
+        )
+    }
 }

@@ -126,6 +126,30 @@ pub fn evaluate(
     Ok((report, paths))
 }
 
+/// Episodes of the learner's periodic evaluation (best.safetensors, eval.csv).
+pub const LEARNER_EVAL_EPISODES: u32 = 10;
+/// Updates between the learner's evaluations.
+pub const LEARNER_EVAL_EVERY: u64 = 1000;
+
+/// The learner's evaluator of `config`'s preset env: the mean return and success
+/// rate of [`LEARNER_EVAL_EPISODES`] deterministic episodes from the same starts (seed
+/// 0 of the evaluation stream) every time; `None` for a custom env, which only its
+/// actors can step.
+pub fn learner_evaluator(config: &RunConfig) -> Option<saver_learner::best::Evaluator> {
+    config.env.kind()?;
+    let settings = ActorSettings::of(config);
+    Some(Box::new(move |w| {
+        let n = LEARNER_EVAL_EPISODES;
+        let (r, _) = evaluate(&settings, w, n, true, 0)
+            .map_err(|e| saver_core::CoreError::Config(format!("evaluating: {e:#}")))?;
+        Ok(saver_learner::best::Evaluation {
+            mean_return: r.returns.iter().sum::<f32>() / n as f32,
+            success_rate: r.successes as f32 / n as f32,
+            episodes: n,
+        })
+    }))
+}
+
 /// The run settings and weights `source` names: a run folder or a weights file.
 pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
     if source.is_dir() {

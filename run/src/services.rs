@@ -133,7 +133,9 @@ pub struct LearnerArgs {
     pub weights_dir: Option<String>,
     /// Serve Prometheus metrics (text format, any path) on this address: steps,
     /// version, actors, rollouts accepted and refused by reason, update and broadcast
-    /// latency, losses, episode length. No token (they hold no secrets).
+    /// latency, losses, episode length. The gRPC port's rule holds: its token
+    /// (scrapers send `Authorization: Bearer <token>`) and TLS, and a non-loopback
+    /// address needs one of them (or --insecure).
     #[arg(long, value_name = "ADDR")]
     pub metrics: Option<SocketAddr>,
     /// Token and --insecure.
@@ -141,11 +143,18 @@ pub struct LearnerArgs {
     pub access: ServerAccess,
 }
 
-/// Serves Prometheus metrics on `addr` (if given) on `rt`, and says where.
-fn metrics_on(rt: &tokio::runtime::Runtime, addr: Option<SocketAddr>) -> Result<()> {
+/// Serves Prometheus metrics on `addr` (if given) on `rt` under the server's `access`
+/// rule, and says where.
+fn metrics_on(
+    rt: &tokio::runtime::Runtime,
+    addr: Option<SocketAddr>,
+    access: &ServerAccess,
+) -> Result<()> {
     if let Some(addr) = addr {
-        let bound = crate::prometheus::serve_metrics(rt, addr)?;
-        eprintln!("Prometheus metrics at http://{bound}/metrics");
+        let access = access.metrics(addr)?;
+        let scheme = access.scheme();
+        let bound = crate::prometheus::serve_metrics(rt, addr, access)?;
+        eprintln!("Prometheus metrics at {scheme}://{bound}/metrics");
     }
     Ok(())
 }
@@ -186,7 +195,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         .with_context(|| format!("resuming from {}", out.display()))?;
     crate::pretrain::pin_saved(&mut config, saved);
     let rt = runtime()?;
-    metrics_on(&rt, args.metrics)?;
+    metrics_on(&rt, args.metrics, &args.access)?;
     let pcpn = match (config.algo, args.pcpn.as_deref()) {
         (Algo::Saver, Some(url)) if url.starts_with("http://") || url.starts_with("https://") => {
             eprintln!(
@@ -380,6 +389,10 @@ pub struct PcpnTrainerArgs {
     /// Serve Prometheus metrics (pretraining progress) on this address.
     #[arg(long, value_name = "ADDR")]
     pub metrics: Option<SocketAddr>,
+    /// A custom env's pretraining fails (saying what it waited for) when its actors
+    /// stream no samples for this many seconds.
+    #[arg(long, value_name = "SECONDS", default_value_t = 1800.0, value_parser = positive_secs)]
+    pub pretrain_deadline: f64,
     /// Token and --insecure.
     #[command(flatten)]
     pub access: ServerAccess,
@@ -389,7 +402,7 @@ pub struct PcpnTrainerArgs {
 pub fn pcpn_trainer(args: PcpnTrainerArgs) -> Result<()> {
     let check = args.access.check(args.listen)?;
     let rt = runtime()?;
-    metrics_on(&rt, args.metrics)?;
+    metrics_on(&rt, args.metrics, &args.access)?;
     let listener = rt.block_on(bind(args.listen))?;
     eprintln!(
         "pcpn-trainer serving the store {} on {}",
@@ -397,7 +410,9 @@ pub fn pcpn_trainer(args: PcpnTrainerArgs) -> Result<()> {
         listener.local_addr()?
     );
     rt.block_on(saver_pcpn_trainer::service::serve(
-        PcpnService::new(&args.store).with_access(check),
+        PcpnService::new(&args.store)
+            .with_access(check)
+            .with_sample_deadline(std::time::Duration::from_secs_f64(args.pretrain_deadline)),
         listener,
         terminated(),
     ))?;

@@ -179,6 +179,8 @@ pub fn start_learner(
         rows: Some(row_tx),
         checkpoint_every,
         start: state,
+        evaluator: crate::eval::learner_evaluator(config),
+        eval_every: crate::eval::LEARNER_EVAL_EVERY,
         ..TrainerOptions::new(out.to_path_buf(), stop)
     };
     let trainer = spawn_trainer(algo, hub.clone(), rx, opts)?;
@@ -328,4 +330,16 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
         crate::out!("  actions     {}", histogram.display());
     }
     crate::out!("  checkpoint  {}", o.checkpoint.display());
+    crate::out!(
+        "  policy      {} (any client: saver eval, saver_actor.Policy.load)",
+        out.join(saver_learner::best::POLICY_FILE).display()
+    );
+    let best = out.join(saver_learner::best::BEST_FILE);
+    if best.exists() {
+        crate::out!(
+            "  best        {} (by deterministic evaluation; every one in {})",
+            best.display(),
+            out.join(saver_learner::best::EVAL_CSV).display()
+        );
+    }
 }

@@ -120,6 +120,9 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
         "metrics.csv",
         "learning_curve.png",
         "checkpoint.safetensors",
+        "policy.safetensors",
+        "best.safetensors",
+        "eval.csv",
     ] {
         assert!(
             t.contains(&run.join(f).display().to_string()),
@@ -163,6 +166,37 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
             "checkpoint lacks {name}"
         );
     }
+    // policy.safetensors: the final weights, self-describing (the checkpoint's agent).
+    let (policy, about) =
+        saver_proto::decode(&std::fs::read(run.join("policy.safetensors")).unwrap()).unwrap();
+    assert_eq!(
+        (about["format"].as_str(), about["version"].as_str()),
+        ("saver-policy/1", "469")
+    );
+    crate::assert_tensors_in(&policy, &tensors);
+    // best.safetensors: the best evaluation (469 updates: one, at the end), which
+    // `saver eval` repeats from the same starts (10 deterministic episodes, seed 0).
+    let evals = std::fs::read_to_string(run.join("eval.csv")).unwrap();
+    let row: Vec<&str> = evals.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!(evals.lines().count(), 2, "{evals}");
+    assert_eq!(
+        (row[0], row[1], row[2], row[5]),
+        ("60032", "469", "10", "1")
+    );
+    let best = run.join("best.safetensors");
+    let o = saver(&[
+        "eval",
+        best.to_str().unwrap(),
+        "--episodes",
+        "10",
+        "--deterministic",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let logged: f64 = row[3].parse().unwrap();
+    let again = j["mean_return"].as_f64().unwrap();
+    assert!((logged - again).abs() < 1e-4, "{logged} vs {again}");
     // The resolved config reads back as a config file.
     let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
     assert!(

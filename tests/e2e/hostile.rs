@@ -37,7 +37,7 @@ fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Cod
     let mut r = base.clone();
     r.seq = 6 + i as u64;
     // (A message over the size cap ends the stream: abuse::unreadable_or_oversized_….)
-    let kind = rng.random_range(0..12);
+    let kind = rng.random_range(0..13);
     let code = match kind {
         0 => {
             // A shorter array (done included).
@@ -135,7 +135,26 @@ fn mutate(base: &pb::Rollout, i: usize, rng: &mut impl Rng) -> (pb::Rollout, Cod
             }
             Code::InvalidArgument
         }
-        _ => unreachable!("kinds are 0..12"),
+        12 => {
+            // Issue 35's forged successes: every step ends a one-step episode flagged
+            // as a success, lengths and returns consistent, but from p = (0.9, 0.9) a
+            // step of Δp = (−0.05, −0.05) reaches (0.85, 0.85), far outside the goal's
+            // radius 0.1 around the origin.
+            let n = r.done.len();
+            r.obs = vec![0.9; r.obs.len()];
+            r.state_delta = vec![-0.05; r.state_delta.len()];
+            r.vector_reward = vec![0.05; r.vector_reward.len()];
+            r.done = vec![true; n];
+            (r.timeouts, r.timeout_obs) = (vec![], vec![]);
+            let forged = pb::Episode {
+                length: 1,
+                success: true,
+                ret: 0.1,
+            };
+            r.episodes = vec![forged; n];
+            Code::InvalidArgument
+        }
+        _ => unreachable!("kinds are 0..13"),
     };
     (r, code)
 }
@@ -362,6 +381,50 @@ fn a_hundred_thousand_hostile_rollouts_are_refused_and_change_nothing() {
     let now = hub.latest();
     assert_eq!(now.version, 1);
     assert_tensors_in(&now.tensors, &weights_after_one.tensors);
+    hub.close("test over");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+/// A Register whose env name is 1 MiB is refused with a reason that fits in a
+/// status (the name cut to 64 characters and "…"); a 1 MiB actor name is cut too, and
+/// the registration goes through.
+#[test]
+fn a_one_mebibyte_name_gets_a_short_refusal() {
+    let (config, dir, rt, _learner, hub, url) = one_actor_learner("huge-name");
+    let huge = "n".repeat(1 << 20);
+    let (refusal, accepted) = rt.block_on(async {
+        let mut client = LearnerClient::connect(url.clone())
+            .await
+            .unwrap()
+            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
+        let mut env = pb::EnvSpec::from(&config.env);
+        env.kind = huge.clone();
+        let refusal = client
+            .register(pb::RegisterRequest {
+                name: "huge-env".into(),
+                session: SESSION,
+                n_envs: 1,
+                env: Some(env),
+            })
+            .await
+            .unwrap_err();
+        let accepted = client
+            .register(pb::RegisterRequest {
+                name: huge.clone(),
+                session: SESSION,
+                n_envs: 1,
+                env: None,
+            })
+            .await;
+        (refusal, accepted)
+    });
+    assert_eq!(refusal.code(), Code::InvalidArgument, "{refusal:?}");
+    let m = refusal.message();
+    assert!(
+        m.len() < 400 && m.contains(&format!("{}…", &huge[..64])),
+        "{m}"
+    );
+    assert!(accepted.is_ok(), "{accepted:?}");
     hub.close("test over");
     std::fs::remove_dir_all(dir).ok();
 }

@@ -45,15 +45,21 @@ fn free_port() -> String {
     l.local_addr().unwrap().to_string()
 }
 
+/// The raw HTTP answer to a GET of /metrics at `addr` with the extra header lines
+/// `headers`.
+fn get_metrics(addr: &str, headers: &str) -> String {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    write!(s, "GET /metrics HTTP/1.1\r\nHost: saver\r\n{headers}\r\n").unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    text
+}
+
 /// Scrapes Prometheus metrics at `addr` and parses the text format into
 /// `name{labels}` -> value (comment lines checked to be HELP or TYPE).
 fn scrape(addr: &str) -> std::collections::HashMap<String, f64> {
-    use std::io::{Read, Write};
-    let mut s = std::net::TcpStream::connect(addr).unwrap();
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: saver\r\n\r\n")
-        .unwrap();
-    let mut text = String::new();
-    s.read_to_string(&mut text).unwrap();
+    let text = get_metrics(addr, "");
     let (head, body) = text.split_once("\r\n\r\n").unwrap();
     assert!(head.starts_with("HTTP/1.1 200"), "{head}");
     body.lines()
@@ -547,4 +553,40 @@ fn a_learner_with_no_actors_stops_on_sigterm_and_removes_its_weights_dir() {
     assert!(status.is_some_and(|s| s.success()), "{status:?}");
     assert!(!wdir.exists(), "the weights directory is removed");
     std::fs::remove_dir_all(dir).ok();
+}
+
+/// The metrics endpoint follows the gRPC port's rule: on a non-loopback address with
+/// neither token nor TLS the server refuses to start, saying why; with a token a
+/// scrape without it gets 401 and one with it the metrics.
+#[test]
+fn the_metrics_endpoint_needs_the_token_off_loopback() {
+    let dir = temp_dir("metrics-access");
+    let store = dir.join("store").display().to_string();
+    let port = free_port().rsplit_once(':').unwrap().1.to_string();
+    let open = format!("0.0.0.0:{port}");
+    let base = ["pcpn-trainer", "--listen", "127.0.0.1:0", "--store", &store];
+    let out = Command::new(env!("CARGO_BIN_EXE_saver"))
+        .args(base)
+        .args(["--metrics", &open])
+        .env_remove("SAVER_TOKEN")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("refusing to serve metrics on 0.0.0.0"),
+        "{err}"
+    );
+
+    let mut args = base.to_vec();
+    args.extend(["--metrics", &open, "--token", "metrics-s3cret"]);
+    let (_store, _) = serve(&args);
+    let local = format!("127.0.0.1:{port}");
+    let refused = get_metrics(&local, "");
+    assert!(refused.starts_with("HTTP/1.1 401"), "{refused}");
+    let wrong = get_metrics(&local, "Authorization: Bearer metrics-s3cre\r\n");
+    assert!(wrong.starts_with("HTTP/1.1 401"), "{wrong}");
+    let ok = get_metrics(&local, "Authorization: Bearer metrics-s3cret\r\n");
+    assert!(ok.starts_with("HTTP/1.1 200"), "{ok}");
+    assert!(!ok.contains("needs the server's token"), "{ok}");
 }

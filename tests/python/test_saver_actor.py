@@ -32,7 +32,7 @@ import numpy as np
 from safetensors import safe_open
 from safetensors.numpy import load
 
-from saver_actor import Actor, Connection, EnvDecl, EnvError, Refused, policy_for
+from saver_actor import Actor, Connection, EnvDecl, EnvError, Policy, Refused, policy_for
 from saver_actor._proto import saver_pb2 as pb
 from saver_actor._proto import saver_pb2_grpc as pb_grpc
 from saver_actor.examples import reacher
@@ -148,6 +148,17 @@ def test_numpy_policies_act_as_the_rust_ones():
             got = policy.quantiles(obs, payload)
             want = np.array([r["action"] for r in rust])
             assert np.allclose(got, want, rtol=1e-4, atol=1e-5), (name, np.abs(got - want).max())
+        # The user's way in: Policy.load on the file or its bytes, predict as SB3's.
+        want = want_mean.copy()
+        want[:, :layout.continuous] = np.clip(want[:, :layout.continuous], -1.0, 1.0)
+        for source in (path, open(path, "rb").read()):
+            loaded = Policy.load(source)
+            got, state = loaded.predict(obs, deterministic=True)
+            assert state is None and np.allclose(got, want, rtol=1e-4, atol=1e-5), (name, np.abs(got - want).max())
+            one, _ = loaded.predict(obs[0])
+            assert one.shape == (layout.continuous + layout.choices,) and np.allclose(one, got[0])
+            drawn, _ = loaded.predict(obs, deterministic=False, rng=np.random.default_rng(3))
+            assert drawn.shape == got.shape and np.all(np.abs(drawn[:, :layout.continuous]) <= 1.0)
         print(f"  {name}: {settings.policy.family} agrees on 64 observations "
               f"(largest difference {np.abs(mean - want_mean).max():.2e})")
 

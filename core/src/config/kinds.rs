@@ -23,7 +23,8 @@ impl Algo {
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
             CoreError::Config(format!(
-                "algo: unknown algorithm {s:?} (expected saver, a2c or qrrl)"
+                "algo: unknown algorithm {:?} (expected saver, a2c or qrrl)",
+                crate::clip_text(s)
             ))
         })
     }

@@ -159,10 +159,11 @@ impl PretrainConfig {
         Ok(())
     }
 
-    /// The identity of the PCPN these settings make for `spec`: a short hash of both,
-    /// for file names (the full settings are in the file's metadata).
+    /// The identity of the PCPN these settings make for `spec`: a short hash of both
+    /// (of the env's dynamics: a custom env's success rule is no part of it), for file
+    /// names (the full settings are in the file's metadata).
     pub fn key(&self, spec: &EnvSpec) -> String {
-        let json = serde_json::to_vec(&(spec, self)).unwrap_or_default();
+        let json = serde_json::to_vec(&(spec.dynamics(), self)).unwrap_or_default();
         saver_proto::sha256_hex(&json)[..12].to_string()
     }
 }

@@ -12,6 +12,7 @@ pub use bandit::{bandit_reward, Bandit};
 pub use point::Point;
 pub use select::Select;
 pub use spec::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
+pub use success::SuccessRule;
 
 use crate::rng::SaverRng;
 use crate::{CoreError, Result};
@@ -198,6 +199,7 @@ mod bandit;
 mod point;
 mod select;
 mod spec;
+mod success;
 
 #[cfg(test)]
 mod tests;

@@ -3,7 +3,7 @@
 //! angle, select and arm are presets of it ([`EnvKind`]); a user's env is a spec of its
 //! own ([`EnvSpec::custom`]) whose actors bring the env itself.
 
-use super::{Angle, Arm, Env, Select};
+use super::{Angle, Arm, Env, Select, SuccessRule, SUCCESS_RADIUS};
 use crate::nets::slack;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
@@ -35,7 +35,8 @@ impl EnvKind {
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
             CoreError::Config(format!(
-                "env: unknown environment {s:?} (expected angle, select, arm, bandit or point)"
+                "env: unknown environment {:?} (expected angle, select, arm, bandit or point)",
+                crate::clip_text(s)
             ))
         })
     }
@@ -207,6 +208,8 @@ pub struct EnvSpec {
     layout: EnvLayout,
     /// Bounds.
     bounds: EnvBounds,
+    /// A custom env's declared success rule (presets have theirs by kind).
+    success: Option<SuccessRule>,
 }
 
 impl fmt::Display for EnvSpec {
@@ -240,6 +243,7 @@ impl EnvSpec {
                 name: kind.name().to_string(),
                 layout: kind.layout(dim),
                 bounds: kind.bounds(dim),
+                success: None,
             }),
         }
     }
@@ -266,7 +270,8 @@ impl EnvSpec {
     /// A user's environment: `name` (letters, digits, `_`, `.`, `-`; not a preset's),
     /// its layout and bounds, all checked.
     pub fn custom(name: &str, layout: EnvLayout, bounds: EnvBounds) -> Result<Self> {
-        let bad = |why: String| Err(CoreError::Config(format!("env {name:?}: {why}")));
+        let shown = crate::clip_text(name);
+        let bad = |why: String| Err(CoreError::Config(format!("env {shown:?}: {why}")));
         let name_ok = !name.is_empty()
             && name.len() <= 64
             && name
@@ -323,7 +328,57 @@ impl EnvSpec {
             name: name.to_string(),
             layout,
             bounds,
+            success: None,
         })
+    }
+
+    /// This custom env with its success rule declared (`None`: its own `terminated`
+    /// is the success, which the learner cannot check). A preset's rule is its kind's.
+    pub fn with_success(mut self, rule: Option<SuccessRule>) -> Result<Self> {
+        let Some(r) = rule else {
+            self.success = None;
+            return Ok(self);
+        };
+        let bad = |why: String| Err(CoreError::Config(format!("env {self}: success: {why}")));
+        if self.preset.is_some() {
+            return bad("a preset's success rule is its kind's; it declares none".into());
+        }
+        if !(r.radius.is_finite() && r.radius > 0.0) {
+            return bad(format!("radius {} must be finite and > 0", r.radius));
+        }
+        if let Some(g) = r.goal_start {
+            if g.saturating_add(self.dim()) > self.layout.obs_dim {
+                return bad(format!(
+                    "the goal entries {g}..{} are not inside the {} observation entries",
+                    g.saturating_add(self.dim()),
+                    self.layout.obs_dim
+                ));
+            }
+        }
+        self.success = Some(r);
+        Ok(self)
+    }
+
+    /// When an episode succeeds, if the learner can tell: a preset's rule (goal at the
+    /// origin, or the arm's goal in observation entries 0..2; radius
+    /// [`SUCCESS_RADIUS`]), or what a custom env declared.
+    pub fn success_rule(&self) -> Option<SuccessRule> {
+        match self.preset {
+            Some(kind) => Some(SuccessRule {
+                radius: SUCCESS_RADIUS,
+                goal_start: (kind == EnvKind::Arm).then_some(0),
+            }),
+            None => self.success,
+        }
+    }
+
+    /// What a PCPN models of this env: the spec without its success rule (a PCPN of
+    /// a custom env serves it whatever its episodes count as success).
+    pub fn dynamics(&self) -> Self {
+        Self {
+            success: None,
+            ..self.clone()
+        }
     }
 
     /// The preset it is, if it is one.
@@ -392,20 +447,22 @@ struct EnvRepr {
     layout: Option<EnvLayout>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     bounds: Option<EnvBounds>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    success: Option<SuccessRule>,
 }
 
 impl TryFrom<EnvRepr> for EnvSpec {
     type Error = CoreError;
     fn try_from(r: EnvRepr) -> Result<Self> {
         match (r.kind, r.name, r.layout, r.bounds) {
-            (Some(kind), None, None, None) => {
+            (Some(kind), None, None, None) if r.success.is_none() => {
                 let dim = r
                     .dim
                     .ok_or_else(|| CoreError::Config("env.dim is missing".into()))?;
                 Self::new(kind, dim)
             }
             (None, Some(name), Some(layout), Some(bounds)) => {
-                let spec = Self::custom(&name, layout, bounds)?;
+                let spec = Self::custom(&name, layout, bounds)?.with_success(r.success)?;
                 match r.dim {
                     Some(d) if d != spec.dim() => Err(CoreError::Config(format!(
                         "env.dim {d} is not the layout's aligned_dim {}",
@@ -415,7 +472,9 @@ impl TryFrom<EnvRepr> for EnvSpec {
                 }
             }
             _ => Err(CoreError::Config(
-                "env: a preset (kind and dim) or a custom env (name, layout and bounds)".into(),
+                "env: a preset (kind and dim) or a custom env (name, layout and bounds, \
+                 optionally success)"
+                    .into(),
             )),
         }
     }
@@ -431,6 +490,7 @@ impl From<EnvSpec> for EnvRepr {
                 dim,
                 layout: None,
                 bounds: None,
+                success: None,
             },
             None => Self {
                 kind: None,
@@ -438,6 +498,7 @@ impl From<EnvSpec> for EnvRepr {
                 dim,
                 layout: Some(s.layout),
                 bounds: Some(s.bounds),
+                success: s.success,
             },
         }
     }
@@ -540,5 +601,54 @@ mod tests {
                 .to_string();
             assert!(e.contains(want), "{want}: {e}");
         }
+    }
+
+    /// A custom env's success rule reads back from TOML and JSON, is checked, and
+    /// leaves what a PCPN models alone; presets have theirs by kind.
+    #[test]
+    fn success_rules_are_declared_checked_and_not_part_of_the_dynamics() {
+        let rule = SuccessRule {
+            radius: 0.05,
+            goal_start: Some(0),
+        };
+        let r = reacher().with_success(Some(rule)).unwrap();
+        assert_eq!(r.success_rule(), Some(rule));
+        let toml_text = toml::to_string(&r).unwrap();
+        assert!(toml_text.contains("[success]"), "{toml_text}");
+        assert_eq!(toml::from_str::<EnvSpec>(&toml_text).unwrap(), r);
+        assert_ne!(r, reacher());
+        assert_eq!(r.dynamics(), reacher());
+        // Goal entries 3..5 are past the 4 observation entries; radius 0; a preset.
+        for (rule, want) in [
+            (
+                SuccessRule {
+                    radius: 0.05,
+                    goal_start: Some(3),
+                },
+                "3..5",
+            ),
+            (
+                SuccessRule {
+                    radius: 0.0,
+                    goal_start: None,
+                },
+                "radius 0",
+            ),
+        ] {
+            let e = reacher().with_success(Some(rule)).unwrap_err().to_string();
+            assert!(e.contains(want), "{want}: {e}");
+        }
+        let arm = EnvSpec::new(EnvKind::Arm, 2).unwrap();
+        assert!(arm.clone().with_success(Some(rule)).is_err());
+        assert_eq!(
+            arm.success_rule(),
+            Some(SuccessRule {
+                radius: 0.1,
+                goal_start: Some(0)
+            })
+        );
+        let angle = EnvSpec::new(EnvKind::Angle, 4).unwrap();
+        assert_eq!(angle.success_rule().unwrap().goal_start, None);
+        assert_eq!(reacher().success_rule(), None);
     }
 }

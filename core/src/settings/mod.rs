@@ -10,7 +10,7 @@ use crate::config::{
     Algo, DeltaTarget, Mode, OptimizerKind, PretrainConfig, RunConfig, SampleDistribution,
     DEFAULT_MAX_LAG,
 };
-use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
+use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec, SuccessRule};
 use crate::{CoreError, Result};
 use clap::Args;
 use serde::{Deserialize, Serialize};
@@ -51,6 +51,10 @@ pub struct EnvSettings {
     #[arg(skip)]
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bounds: Option<EnvBounds>,
+    /// A custom env's success rule (optional: without it the env's own word is taken).
+    #[arg(skip)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub success: Option<SuccessRule>,
 }
 
 impl EnvSettings {
@@ -68,7 +72,7 @@ impl EnvSettings {
                     "env {name:?}: a custom env needs its layout and bounds"
                 )));
             };
-            let spec = EnvSpec::custom(name, layout, bounds)?;
+            let spec = EnvSpec::custom(name, layout, bounds)?.with_success(self.success)?;
             if self.dim.is_some_and(|d| d != spec.dim()) {
                 return Err(config_err(format!(
                     "env {name:?}: dim is its layout's aligned_dim, {}",
