@@ -137,7 +137,8 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                     .into_inner();
                 let template = Rollout {
                     actor_id: reg.actor_id,
-                    session: i as u64,
+                    // The learner's secret for this registration, not the client's number.
+                    session: reg.session,
                     seq: 0,
                     policy_version: 0,
                     n_envs: 1,
@@ -151,8 +152,9 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                         })
                         .collect(),
                     actions: vec![0.2; n * layout.action_dim()],
-                    state_delta: vec![0.01; n * layout.aligned_dim],
-                    vector_reward: vec![0.01; n * layout.aligned_dim],
+                    // Standing still: each step's p + Δp is the next p, as the learner checks.
+                    state_delta: vec![0.0; n * layout.aligned_dim],
+                    vector_reward: vec![0.0; n * layout.aligned_dim],
                     done: vec![false; n],
                     timeouts: vec![],
                     timeout_obs: vec![],
@@ -161,10 +163,11 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                 };
                 let msg = pb::Rollout::from(&template);
                 let (tx, rxs) = tokio::sync::mpsc::channel(64);
-                let mut acks = client
-                    .stream_rollouts(tokio_stream::wrappers::ReceiverStream::new(rxs))
-                    .await?
-                    .into_inner();
+                let mut req = tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rxs));
+                let md = req.metadata_mut();
+                md.insert(saver_proto::ACTOR_ID_KEY, reg.actor_id.into());
+                md.insert(saver_proto::SESSION_KEY, reg.session.into());
+                let mut acks = client.stream_rollouts(req).await?.into_inner();
                 let sender = tokio::spawn(async move {
                     let mut seq = 0;
                     while Instant::now() < deadline {
