@@ -5,6 +5,7 @@ print the learner's [env] section, or time the actor against the bare env.
   saver-actor act      --env-id Pendulum-v1 --aligned 0:2 --max-change 0.2 ...
   saver-actor samples  --factory ... --pcpn http://127.0.0.1:50052
   saver-actor describe --factory ...
+  saver-actor check    --factory ... [--steps 500]      (before a long run: the declaration holds)
 """
 from __future__ import annotations
 
@@ -68,7 +69,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="saver-actor", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
-    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe")}
+    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe", "check")}
     for p in cmds.values():
         p.add_argument("--factory", help="module:function returning (make_env, EnvDecl)")
         p.add_argument("--env-id", help="a Gymnasium env id (with --aligned and --max-change)")
@@ -91,11 +92,18 @@ def main(argv=None):
     a.add_argument("--seed", type=int, default=0, help="seed of the PCPN samples")
     cmds["samples"].add_argument("--pcpn", required=True, metavar="URL", help="the pcpn-trainer")
     cmds["samples"].add_argument("--seed", type=int, default=0)
+    cmds["check"].add_argument("--steps", type=int, default=500, help="random steps to take")
+    cmds["check"].add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     try:
         make_env, decl = env_of(args)
         if args.cmd == "describe":
             print(decl.toml(), end="")
+            return 0
+        if args.cmd == "check":
+            from .check import check_env
+
+            print(check_env(make_env, decl, steps=args.steps, seed=args.seed).text(decl))
             return 0
         if args.cmd == "samples":
             n = provide_samples(make_env, decl, connection(args.pcpn, args), seed=args.seed)

@@ -229,7 +229,6 @@ class Actor:
         reply = self._register(stub)
         s = reply.settings
         self.summary.registrations += 1
-        d = self.decl
         n, e = s.rollout, self.n_envs
         params = dict(s.policy.params)
         rng = np.random.default_rng([s.seed, 1000 + reply.actor_id])

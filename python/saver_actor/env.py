@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Optional, Sequence
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 
 from ._proto import saver_pb2 as pb
+
 
 # Values this close past a bound still pass (the learner's rounding slack).
 def _slack(b: float) -> float:
@@ -57,8 +58,8 @@ class EnvDecl:
     """
 
     name: str
-    obs_low: Sequence[float]
-    obs_high: Sequence[float]
+    obs_low: Union[Sequence[float], np.ndarray]  # an array of float64 after construction
+    obs_high: Union[Sequence[float], np.ndarray]
     aligned: slice
     max_change: float
     continuous: int
@@ -142,8 +143,8 @@ class EnvDecl:
             kind=self.name, dim=self.dim,
             layout=pb.EnvLayout(obs_dim=self.obs_dim, continuous=self.continuous, choices=self.choices,
                                 aligned_start=a.start, aligned_dim=self.dim),
-            bounds=pb.EnvBounds(obs_low=self.obs_low.astype(np.float32).tolist(),
-                                obs_high=self.obs_high.astype(np.float32).tolist(),
+            bounds=pb.EnvBounds(obs_low=np.asarray(self.obs_low, dtype=np.float32).tolist(),
+                                obs_high=np.asarray(self.obs_high, dtype=np.float32).tolist(),
                                 max_change=float(np.float32(self.max_change))))
         if self.success_radius is not None:
             spec.success_radius = float(np.float32(self.success_radius))
@@ -192,7 +193,8 @@ class EnvDecl:
         """Refuses observations [E, obs_dim] (or one [obs_dim]) outside the declared bounds."""
         obs = np.asarray(obs)
         if obs.shape[-1:] != (self.obs_dim,):
-            raise EnvError(f"{self.name}: {where}: an observation of shape {obs.shape[-1:]}, declared ({self.obs_dim},)")
+            raise EnvError(f"{self.name}: {where}: an observation of shape {obs.shape[-1:]}, "
+                           f"declared ({self.obs_dim},)")
         lo, hi = self.obs_low, self.obs_high
         out = ~((obs >= lo - np.abs(lo) * 1e-5 - 1e-6) & (obs <= hi + np.abs(hi) * 1e-5 + 1e-6))
         if out.any():

@@ -34,7 +34,8 @@ class Gaussian:
         self.c, self.ch = layout.continuous, layout.choices
         self.layers = []
         for i in range(TRUNK):
-            self.layers.append((tensors[f"agent.l{i}.w"].astype(np.float32), tensors[f"agent.l{i}.b"].astype(np.float32)))
+            w, b = tensors[f"agent.l{i}.w"], tensors[f"agent.l{i}.b"]
+            self.layers.append((w.astype(np.float32), b.astype(np.float32)))
         self.layers.append((tensors["agent.mu.w"].astype(np.float32), tensors["agent.mu.b"].astype(np.float32)))
         if self.layers[0][0].shape[0] != layout.obs_dim or self.layers[-1][0].shape[1] != self.c + self.ch:
             raise ValueError("the weights do not fit the env layout")
@@ -42,7 +43,8 @@ class Gaussian:
         self.mu_bound = None if not math.isfinite(bound) else np.float32(bound)
         lo, hi = params.get("log_std_min", -math.inf), params.get("log_std_max", math.inf)
         log_std = tensors["agent.log_std"].astype(np.float32)
-        self.log_std = np.clip(log_std, np.float32(lo), np.float32(hi)) if (math.isfinite(lo) or math.isfinite(hi)) else log_std
+        bounded = math.isfinite(lo) or math.isfinite(hi)
+        self.log_std = np.clip(log_std, np.float32(lo), np.float32(hi)) if bounded else log_std
         self.sigma = np.exp(self.log_std)
         self.payload_width = 2 * self.c + self.ch
 

@@ -30,7 +30,7 @@ class Walker:
     def __init__(self, env, decl: EnvDecl, seed: int, walk_steps: int):
         self.env, self.decl, self.walk_steps = env, decl, walk_steps
         self.rng = np.random.default_rng(seed)
-        self.obs = None
+        self.obs: Optional[np.ndarray] = None
         self.steps = 0
 
     def _reset(self):
@@ -60,6 +60,7 @@ class Walker:
                 d.env_actions(action[None], self.env.action_space)[0])
             nxt = np.asarray(nxt, dtype=np.float64).reshape(-1)
             d.check_obs(nxt, "a sample step")
+            assert self.obs is not None
             dl, _, success = d.outcome(self.obs[None], nxt[None], [reward], [terminated], [info])
             obs[k], delta[k] = self.obs, dl[0]
             self.steps += 1
@@ -82,7 +83,7 @@ def provide_samples(make_env: Callable, decl: EnvDecl, conn: Connection, seed: i
         out: "queue.Queue" = queue.Queue()
         out.put(pb.SampleBatch(env=decl.spec(), n=0))
 
-        def requests():
+        def requests(out=out):
             while True:
                 m = out.get()
                 if m is None:

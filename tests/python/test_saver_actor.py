@@ -31,7 +31,6 @@ import gymnasium as gym
 import numpy as np
 from safetensors import safe_open
 from safetensors.numpy import load
-
 from saver_actor import Actor, Connection, EnvDecl, EnvError, Policy, Refused, policy_for
 from saver_actor._proto import saver_pb2 as pb
 from saver_actor._proto import saver_pb2_grpc as pb_grpc
@@ -353,6 +352,31 @@ def make():
     decl = EnvDecl.for_env(Line(), name="line", aligned="0:1", max_change=0.05, success_radius=0.05)
     return (lambda: gym.wrappers.TimeLimit(Line(), 100)), decl
 """
+
+
+def test_check_finds_what_a_run_would_refuse():
+    """`saver-actor check` before a long run: the line env passes as declared; declared
+    with max_change 0.01 (it moves 0.05) or ending its episodes without success, it
+    fails naming what is wrong, as the actor would mid-run."""
+    d = os.path.join(TMP, "check")
+    os.makedirs(d)
+    cases = {
+        "good": ("", 0, "every check passed"),
+        "tight": ("LINE_MAX = 0.01\n", 2, "beyond the declared max_change 0.01"),
+        "ender": ("LINE_TERMINATES = True\n", 2, "terminated) without success"),
+    }
+    for name, (prefix, rc, want) in cases.items():
+        code = LINE.replace("max_change=0.05", "max_change=LINE_MAX")
+        code = code.replace("return self.p.copy(), 0.0, False, False, {}",
+                            "return self.p.copy(), 0.0, LINE_TERMINATES and abs(self.p[0]) > 0.5, False, {}")
+        head = "LINE_MAX = 0.05\nLINE_TERMINATES = False\n" + prefix
+        with open(os.path.join(d, f"{name}.py"), "w") as f:
+            f.write(code.replace("from saver_actor import EnvDecl\n", "from saver_actor import EnvDecl\n" + head, 1))
+        out = subprocess.run(CLI + ["check", "--factory", f"{name}:make", "--steps", "400"], cwd=d,
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == rc and want in out.stdout + out.stderr, (name, out.returncode, out.stdout,
+                                                                         out.stderr)
+    print("  check: the declared line passes; too tight a max_change and an early end are named")
 
 
 def test_a_discrete_action_env_trains():

@@ -1,0 +1,119 @@
+"""Checks an env against its declaration before a long run (as SB3's env_checker):
+a few hundred steps of random actions, each one held to what the actor and the
+learner will hold it to, with a report of what the declaration leaves loose.
+
+    saver-actor check --factory mymodule:make [--steps 500]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, List
+
+import numpy as np
+
+from .env import EnvDecl, EnvError
+
+
+@dataclass
+class CheckReport:
+    """What a check saw: the steps and episodes it ran, the largest one-step change
+    of each aligned entry, the range of each observation entry, and warnings (things
+    that will not stop a run but probably are not what was meant)."""
+
+    steps: int = 0
+    episodes: int = 0
+    successes: int = 0
+    largest_change: Any = None  # [d]
+    obs_min: Any = None  # [obs_dim]
+    obs_max: Any = None
+    warnings: List[str] = field(default_factory=list)
+
+    def text(self, decl: EnvDecl) -> str:
+        lines = [f"{decl.name}: {self.steps} random steps, {self.episodes} episodes ended "
+                 f"({self.successes} successes); every check passed"]
+        change = ", ".join(f"{v:.3g}" for v in self.largest_change)
+        lines.append(f"  largest one-step change of p: [{change}] (declared max_change {decl.max_change:g})")
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+def _spaces(env, decl: EnvDecl) -> None:
+    import gymnasium as gym
+
+    a, o = env.action_space, env.observation_space
+    if isinstance(a, gym.spaces.Box):
+        if decl.choices or int(np.prod(a.shape)) != decl.continuous:
+            raise EnvError(f"{decl.name}: the action space {a} has {int(np.prod(a.shape))} values; the declaration "
+                           f"says {decl.continuous} continuous and {decl.choices} choices")
+    elif isinstance(a, gym.spaces.Discrete):
+        if decl.continuous or int(a.n) != decl.choices:
+            raise EnvError(f"{decl.name}: the action space {a} has {int(a.n)} choices; the declaration says "
+                           f"{decl.continuous} continuous and {decl.choices} choices")
+    else:
+        raise EnvError(f"{decl.name}: action space {a} is neither a Box nor a Discrete")
+    if not isinstance(o, gym.spaces.Box) or int(np.prod(o.shape)) != decl.obs_dim:
+        raise EnvError(f"{decl.name}: the observation space {o} is not a flat Box of the {decl.obs_dim} "
+                       f"declared entries")
+
+
+def check_env(make_env: Callable, decl: EnvDecl, steps: int = 500, seed: int = 0) -> CheckReport:
+    """Steps a fresh env from `make_env` with uniformly random actions for `steps`
+    steps, raising EnvError at the first thing the actor or the learner would refuse:
+    spaces that are not the declared layout, an observation outside its bounds, a
+    change of p or a vector reward beyond max_change, an episode that ends before its
+    step limit without success. Returns what it saw (CheckReport)."""
+    if steps < 1:
+        raise ValueError(f"steps {steps} must be >= 1")
+    env = make_env()
+    rng = np.random.default_rng(seed)
+    _spaces(env, decl)
+    r = CheckReport(largest_change=np.zeros(decl.dim), obs_min=np.full(decl.obs_dim, np.inf),
+                    obs_max=np.full(decl.obs_dim, -np.inf))
+    c, ch = decl.continuous, decl.choices
+    try:
+        o, _ = env.reset(seed=seed)
+        obs = np.asarray(o, dtype=np.float64).reshape(-1)
+        decl.check_obs(obs, "reset")
+        for _ in range(steps):
+            action = np.zeros(c + ch, dtype=np.float32)
+            action[:c] = rng.uniform(-1.0, 1.0, c)
+            if ch:
+                action[c + rng.integers(ch)] = 1.0
+            nxt, reward, terminated, truncated, info = env.step(decl.env_actions(action[None], env.action_space)[0])
+            nxt = np.asarray(nxt, dtype=np.float64).reshape(-1)
+            where = f"step {r.steps} (episode {r.episodes})"
+            decl.check_obs(nxt, where)
+            delta, vr, success = decl.outcome(obs[None], nxt[None], [reward], [terminated], [info], check=False)
+            decl.check_steps(delta, vr, where)
+            r.steps += 1
+            r.largest_change = np.maximum(r.largest_change, np.abs(delta[0]))
+            r.obs_min, r.obs_max = np.minimum(r.obs_min, nxt), np.maximum(r.obs_max, nxt)
+            if terminated and not success[0]:
+                raise EnvError(f"{decl.name}: {where}: the env ended the episode (terminated) without success; a "
+                               f"SAVER episode ends at the goal or at the step limit: declare success_radius so that "
+                               f"this end is a success, or drop the termination")
+            if success[0] or terminated or truncated:
+                r.episodes += 1
+                r.successes += int(success[0])
+                o, _ = env.reset()
+                obs = np.asarray(o, dtype=np.float64).reshape(-1)
+                decl.check_obs(obs, "reset")
+            else:
+                obs = nxt
+    finally:
+        env.close()
+    _loose(decl, r)
+    return r
+
+
+def _loose(decl: EnvDecl, r: CheckReport) -> None:
+    """Warnings: a max_change far above what the steps showed (the PCPN's targets and
+    the learner's checks are scaled by it), observation entries that never moved."""
+    seen = float(np.max(r.largest_change))
+    if seen < 0.1 * decl.max_change:
+        r.warnings.append(f"p never changed by more than {seen:.3g} in a step, under a tenth of the declared "
+                          f"max_change {decl.max_change:g}: a tighter max_change lets the learner check more")
+    still = [k for k in range(decl.obs_dim) if r.obs_max[k] == r.obs_min[k]]
+    moving_aligned = [k for k in range(decl.aligned.start, decl.aligned.stop) if k in still]
+    if moving_aligned:
+        r.warnings.append(f"aligned entries {moving_aligned} never changed under random actions")
