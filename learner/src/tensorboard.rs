@@ -126,6 +126,17 @@ impl EventWriter {
         Ok(w)
     }
 
+    /// Writes the run's hyperparameters (the hparams plugin's session start) and
+    /// flushes.
+    pub fn write_hparams(&mut self, hparams: &[(String, HParam)]) -> std::io::Result<()> {
+        let wall = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default()
+            .as_secs_f64();
+        self.out.write_all(&record(&hparams_event(wall, hparams)))?;
+        self.out.flush()
+    }
+
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
@@ -146,6 +157,88 @@ impl EventWriter {
             .write_all(&record(&event(wall, step as i64, None, &finite)))?;
         self.out.flush()
     }
+}
+
+/// A hyperparameter's value as the hparams plugin holds it (google.protobuf.Value).
+#[derive(Clone, Debug, PartialEq)]
+pub enum HParam {
+    /// number_value.
+    Number(f64),
+    /// string_value.
+    Text(String),
+    /// bool_value.
+    Bool(bool),
+}
+
+/// The settings of a run (a config as JSON) as hyperparameters: every number,
+/// string and bool, nested tables joined with "." (`saver.quantiles`), arrays left
+/// out, a null (an unbounded value: JSON has no infinity) as the string "inf".
+pub fn hparams_of(config: &serde_json::Value) -> Vec<(String, HParam)> {
+    fn walk(prefix: &str, v: &serde_json::Value, out: &mut Vec<(String, HParam)>) {
+        use serde_json::Value as J;
+        let key = |k: &str| {
+            if prefix.is_empty() {
+                k.to_string()
+            } else {
+                format!("{prefix}.{k}")
+            }
+        };
+        match v {
+            J::Object(m) => m.iter().for_each(|(k, v)| walk(&key(k), v, out)),
+            J::Number(n) => out.push((
+                prefix.into(),
+                HParam::Number(n.as_f64().unwrap_or(f64::NAN)),
+            )),
+            J::String(s) => out.push((prefix.into(), HParam::Text(s.clone()))),
+            J::Bool(b) => out.push((prefix.into(), HParam::Bool(*b))),
+            J::Null => out.push((prefix.into(), HParam::Text("inf".into()))),
+            J::Array(_) => {}
+        }
+    }
+    let mut out = Vec::new();
+    walk("", config, &mut out);
+    out
+}
+
+/// The hparams plugin's session start (tensorboard/plugins/hparams): an `Event` whose
+/// summary holds one value, tag `_hparams_/session_start_info`, with metadata
+/// (field 9) PluginData {plugin_name = "hparams", content = HParamsPluginData {version
+/// 0, session_start_info (3) = SessionStartInfo {hparams (1): map<string, Value>,
+/// start_time_secs (5)}}}. TensorBoard's HPARAMS tab lists the run by them.
+fn hparams_event(wall_time: f64, hparams: &[(String, HParam)]) -> Vec<u8> {
+    let mut start = Vec::new();
+    for (k, v) in hparams {
+        let mut value = Vec::new();
+        match v {
+            HParam::Number(x) => {
+                value.push(0x11);
+                value.extend_from_slice(&x.to_le_bytes());
+            }
+            HParam::Text(s) => bytes_field(&mut value, 3, s.as_bytes()),
+            HParam::Bool(b) => value.extend_from_slice(&[0x20, *b as u8]),
+        }
+        let mut entry = Vec::new();
+        bytes_field(&mut entry, 1, k.as_bytes());
+        bytes_field(&mut entry, 2, &value);
+        bytes_field(&mut start, 1, &entry);
+    }
+    start.push(0x29);
+    start.extend_from_slice(&wall_time.to_le_bytes());
+    let mut content = vec![0x08, 0x00];
+    bytes_field(&mut content, 3, &start);
+    let mut plugin = Vec::new();
+    bytes_field(&mut plugin, 1, b"hparams");
+    bytes_field(&mut plugin, 2, &content);
+    let mut metadata = Vec::new();
+    bytes_field(&mut metadata, 1, &plugin);
+    let mut value = Vec::new();
+    bytes_field(&mut value, 1, b"_hparams_/session_start_info");
+    bytes_field(&mut value, 9, &metadata);
+    let mut summary = Vec::new();
+    bytes_field(&mut summary, 1, &value);
+    let mut e = event(wall_time, 0, None, &[]);
+    bytes_field(&mut e, 5, &summary);
+    e
 }
 
 /// The scalars of one update: metrics.csv's columns (algorithm statistics by name) and
@@ -205,5 +298,22 @@ mod tests {
         let mut want = vec![0x2a, value.len() as u8 + 2, 0x0a, value.len() as u8];
         want.extend_from_slice(&value);
         assert_eq!(&e[12..], &want[..]);
+    }
+
+    /// Nested settings flatten to dotted keys; arrays are left out and null is "inf".
+    #[test]
+    fn hparams_flatten_the_config() {
+        let v = serde_json::json!({"algo": "saver", "lr": 0.001, "head": {"mu_bound": null},
+                                   "faithful": false, "env": {"bounds": {"obs_low": [0.0]}}});
+        let h = hparams_of(&v);
+        assert_eq!(
+            h,
+            vec![
+                ("algo".to_string(), HParam::Text("saver".into())),
+                ("faithful".to_string(), HParam::Bool(false)),
+                ("head.mu_bound".to_string(), HParam::Text("inf".into())),
+                ("lr".to_string(), HParam::Number(0.001)),
+            ]
+        );
     }
 }

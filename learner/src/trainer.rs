@@ -166,6 +166,11 @@ impl Trainer {
         let mut events = crate::tensorboard::EventWriter::create(run_dir)
             .map_err(|e| io("creating the TensorBoard event file", e))?;
         let config = self.hub.config().clone();
+        events
+            .write_hparams(&crate::tensorboard::hparams_of(
+                &serde_json::to_value(&config).unwrap_or_default(),
+            ))
+            .map_err(|e| io("writing the TensorBoard hparams", e))?;
         let wait = self
             .hub
             .wait_for_actors(config.actors as usize, resumed, &self.stop);

@@ -13,6 +13,7 @@ import sys
 import tempfile
 
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.plugins.hparams import plugin_data_pb2
 
 saver = sys.argv[1] if len(sys.argv) > 1 else "target/release/saver"
 with tempfile.TemporaryDirectory() as tmp:
@@ -36,6 +37,13 @@ with tempfile.TemporaryDirectory() as tmp:
             assert e.step == int(r["steps"]), (tag, e.step, r["steps"])
             want = float(r[tag])
             assert math.isclose(e.value, want, rel_tol=1e-6, abs_tol=1e-12), (tag, e.value, want)
+    # The run's settings as the hparams plugin's session start, read with its own proto.
+    content = acc.PluginTagToContent("hparams")["_hparams_/session_start_info"]
+    hp = plugin_data_pb2.HParamsPluginData.FromString(content).session_start_info.hparams
+    assert hp["algo"].string_value == "a2c" and hp["env.kind"].string_value == "angle", dict(hp)
+    assert hp["env.dim"].number_value == 4 and hp["steps"].number_value == 20480, dict(hp)
+    assert hp["seed"].number_value == 0 and "lr" in hp, dict(hp)
     rate = [e.value for e in acc.Scalars("episode/success_rate")]
     assert all(0.0 <= v <= 1.0 for v in rate), rate
-    print(f"tensorboard reads {len(tags)} scalars x {len(rows)} updates from {os.path.basename(files[0])}")
+    print(f"tensorboard reads {len(tags)} scalars x {len(rows)} updates and {len(hp)} hparams from "
+          f"{os.path.basename(files[0])}")
