@@ -6,6 +6,7 @@ print the learner's [env] section, or time the actor against the bare env.
   saver-actor samples  --factory ... --pcpn http://127.0.0.1:50052
   saver-actor describe --factory ...
   saver-actor check    --factory ... [--steps 500]      (before a long run: the declaration holds)
+  saver-actor enjoy    --factory ... --weights best.safetensors [--video out.mp4]
 """
 from __future__ import annotations
 
@@ -69,7 +70,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="saver-actor", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
-    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe", "check")}
+    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe", "check", "enjoy")}
     for p in cmds.values():
         p.add_argument("--factory", help="module:function returning (make_env, EnvDecl)")
         p.add_argument("--env-id", help="a Gymnasium env id (with --aligned and --max-change)")
@@ -94,6 +95,14 @@ def main(argv=None):
     cmds["samples"].add_argument("--seed", type=int, default=0)
     cmds["check"].add_argument("--steps", type=int, default=500, help="random steps to take")
     cmds["check"].add_argument("--seed", type=int, default=0)
+    j = cmds["enjoy"]
+    j.add_argument("--weights", required=True, help="a policy file (a run's policy.safetensors or best.safetensors, "
+                                                   "saver weights --out)")
+    j.add_argument("--episodes", type=int, default=5)
+    j.add_argument("--video", help="write the episodes' frames here (.mp4, .gif; needs saver-actor[video])")
+    j.add_argument("--stochastic", action="store_true", help="sample actions instead of the policy's mean")
+    j.add_argument("--max-steps", type=int, default=1000, help="end an episode after this many steps")
+    j.add_argument("--seed", type=int, default=0, help="env seed of the first episode (then +1 each)")
     args = ap.parse_args(argv)
     try:
         make_env, decl = env_of(args)
@@ -104,6 +113,21 @@ def main(argv=None):
             from .check import check_env
 
             print(check_env(make_env, decl, steps=args.steps, seed=args.seed).text(decl))
+            return 0
+        if args.cmd == "enjoy":
+            from .enjoy import enjoy
+            from .policy import Policy
+
+            try:
+                policy = Policy.load(args.weights)
+            except (OSError, ValueError) as e:
+                raise EnvError(f"--weights {args.weights}: {e}") from None
+            r = enjoy(make_env, decl, policy, episodes=args.episodes, deterministic=not args.stochastic,
+                      seed=args.seed, max_steps=args.max_steps, video=args.video)
+            for k, ep in enumerate(r.episodes):
+                print(f"episode {k}: return {ep.ret:.3f}, {ep.length} steps{', success' if ep.success else ''}")
+            print(f"{len(r.episodes)} episodes: mean return {r.mean_return:.3f}, success rate {r.success_rate:.2f}"
+                  + (f"; {r.frames} frames in {args.video}" if args.video else ""))
             return 0
         if args.cmd == "samples":
             n = provide_samples(make_env, decl, connection(args.pcpn, args), seed=args.seed)

@@ -47,10 +47,12 @@ class PointMass(gym.Env):
     step's action moves p by accel·dt² = 0.01 per unit, while a moving mass drifts by up
     to dt·v_max = 0.2: as in Reacher, one step's position change is mostly velocity."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, drag: float = 0.05, accel: float = 1.0, radius: float = 0.05, max_steps: int = 200):
+    def __init__(self, drag: float = 0.05, accel: float = 1.0, radius: float = 0.05, max_steps: int = 200,
+                 render_mode=None):
         self.drag, self.accel, self.radius, self.max_steps = drag, accel, radius, max_steps
+        self.render_mode = render_mode
         self.v_max = accel * 0.1 / drag  # the terminal speed of a constant push of 1: 2
         high = np.array([1.0, 1.0, self.v_max, self.v_max, 1.0, 1.0])
         self.observation_space = gym.spaces.Box(-high, high, dtype=np.float64)
@@ -83,13 +85,27 @@ class PointMass(gym.Env):
         reward = -float(np.sum(dist))
         return self._state.copy(), reward, success, self._t >= self.max_steps and not success, {}
 
+    def render(self, size: int = 128):
+        """A size x size RGB frame: the goal's success square in green, the mass in white."""
+        frame = np.zeros((size, size, 3), dtype=np.uint8)
+
+        def pixel(x):
+            return np.clip(((np.asarray(x) + 1.0) * 0.5 * (size - 1)).round().astype(int), 0, size - 1)
+
+        g, r = self._state[4:6], max(self.radius, 2.0 / size)
+        (x0, y0), (x1, y1) = pixel(g - r), pixel(g + r)
+        frame[y0:y1 + 1, x0:x1 + 1] = (40, 160, 60)
+        x, y = pixel(self._state[0:2])
+        frame[max(y - 2, 0):y + 3, max(x - 2, 0):x + 3] = 255
+        return frame
+
 
 def pointmass(radius: float = 0.05):
     """The inertial point mass (PointMass): p = obs[0:2], goal g = obs[4:6], success
     within `radius` of g in both coordinates. Velocities stay within the terminal
     speed accel·dt/drag = 2, so one step moves p by at most dt·2 = 0.2."""
-    def make_env():
-        return PointMass(radius=radius)
+    def make_env(render_mode=None):
+        return PointMass(radius=radius, render_mode=render_mode)
 
     env = PointMass(radius=radius)
     v = env.v_max

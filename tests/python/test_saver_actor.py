@@ -379,6 +379,38 @@ def test_check_finds_what_a_run_would_refuse():
     print("  check: the declared line passes; too tight a max_change and an early end are named")
 
 
+def test_enjoy_shows_a_policy_and_writes_its_video():
+    """`saver-actor enjoy` with the weights a learner serves (the point mass, A2C's
+    first version): 2 deterministic episodes of at most 30 steps, their returns, and an
+    mp4 of every frame (the first observation of each episode and one per step),
+    read back with imageio."""
+    import imageio.v2 as imageio
+
+    make_env, decl = custom_env("saver_actor.examples:pointmass")
+    cfg = os.path.join(TMP, "enjoy.toml")
+    with open(cfg, "w") as f:
+        f.write("max_episode_steps = 200\n" + decl.toml())
+    srv = learner("enjoy", "--config", cfg, "--steps", "1000").wait_ready()
+    try:
+        _, _, path = registered_weights(srv.url)
+    finally:
+        srv.stop()
+    video = os.path.join(TMP, "pointmass.mp4")
+    out = subprocess.run(CLI + ["enjoy", "--factory", "saver_actor.examples:pointmass", "--weights", path,
+                                "--episodes", "2", "--max-steps", "30", "--video", video],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    lengths = [int(line.split(", ")[1].split()[0]) for line in out.stdout.splitlines() if line.startswith("episode")]
+    assert len(lengths) == 2 and all(1 <= n <= 30 for n in lengths), out.stdout
+    frames = imageio.mimread(video, memtest=False)
+    assert len(frames) == sum(lengths) + 2 and frames[0].shape[2] == 3, (len(frames), lengths)
+    assert f"{sum(lengths) + 2} frames" in out.stdout, out.stdout
+    bad = subprocess.run(CLI + ["enjoy", "--factory", "saver_actor.examples:pointmass", "--weights", cfg],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "not a safetensors file" in bad.stderr, bad.stderr
+    print(f"  enjoy: 2 episodes of {lengths} steps, {len(frames)} frames in the mp4")
+
+
 def test_a_discrete_action_env_trains():
     """A Discrete action space is the categorical choice: A2C learns to walk a point to 0
     (mean episode length ~66 untrained; measured 14 after 40 k steps)."""
