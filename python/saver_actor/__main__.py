@@ -7,6 +7,7 @@ print the learner's [env] section, or time the actor against the bare env.
   saver-actor describe --factory ...
   saver-actor check    --factory ... [--steps 500]      (before a long run: the declaration holds)
   saver-actor enjoy    --factory ... --weights best.safetensors [--video out.mp4]
+  saver-actor evaluate --factory ... --learner URL --out best.safetensors [--every 60]
 """
 from __future__ import annotations
 
@@ -70,7 +71,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="saver-actor", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
-    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe", "check", "enjoy")}
+    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe", "check", "enjoy", "evaluate")}
     for p in cmds.values():
         p.add_argument("--factory", help="module:function returning (make_env, EnvDecl)")
         p.add_argument("--env-id", help="a Gymnasium env id (with --aligned and --max-change)")
@@ -103,6 +104,13 @@ def main(argv=None):
     j.add_argument("--stochastic", action="store_true", help="sample actions instead of the policy's mean")
     j.add_argument("--max-steps", type=int, default=1000, help="end an episode after this many steps")
     j.add_argument("--seed", type=int, default=0, help="env seed of the first episode (then +1 each)")
+    v = cmds["evaluate"]
+    v.add_argument("--learner", default="http://127.0.0.1:50051")
+    v.add_argument("--out", default="best.safetensors", help="the best weights so far (eval.csv beside it)")
+    v.add_argument("--every", type=float, default=60.0, help="seconds between evaluations")
+    v.add_argument("--episodes", type=int, default=10, help="deterministic episodes per evaluation")
+    v.add_argument("--max-steps", type=int, default=1000, help="end an episode after this many steps")
+    v.add_argument("--seed", type=int, default=0, help="env seed of the first episode (then +1 each)")
     args = ap.parse_args(argv)
     try:
         make_env, decl = env_of(args)
@@ -133,6 +141,14 @@ def main(argv=None):
             n = provide_samples(make_env, decl, connection(args.pcpn, args), seed=args.seed)
             print(f"sample provider: the store closed the call after {n} samples", file=sys.stderr)
             return 0
+        if args.cmd == "evaluate":
+            from .evaluate import keep_best
+
+            best = keep_best(make_env, decl, connection(args.learner, args), args.out, every=args.every,
+                             episodes=args.episodes, max_steps=args.max_steps, seed=args.seed,
+                             log=lambda m: print(m, file=sys.stderr))
+            print(f"the run finished; best mean return {best} in {args.out}", file=sys.stderr)
+            return 0
         if args.pcpn_samples:
             conn = connection(args.pcpn_samples, args)
             threading.Thread(target=provide_samples, args=(make_env, decl, conn),
@@ -144,7 +160,7 @@ def main(argv=None):
         print(f"{actor.name}: run finished; {s.rollouts} rollouts, {s.steps} env steps, {s.episodes} episodes "
               f"({s.successes} successes) in {s.seconds:.1f} s", file=sys.stderr)
         return 0
-    except (EnvError, Refused) as e:
+    except (EnvError, Refused, RuntimeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 

@@ -16,6 +16,7 @@ processes:
 
     python3 tests/python/test_saver_actor.py target/release/saver
 """
+import csv
 import importlib
 import json
 import os
@@ -409,6 +410,42 @@ def test_enjoy_shows_a_policy_and_writes_its_video():
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "not a safetensors file" in bad.stderr, bad.stderr
     print(f"  enjoy: 2 episodes of {lengths} steps, {len(frames)} frames in the mp4")
+
+
+def test_evaluate_keeps_the_best_weights_of_a_custom_env_run():
+    """`saver-actor evaluate` beside a point-mass run (A2C, 20 k steps, one actor):
+    it evaluates versions as they come until the run finishes, one eval.csv row each,
+    and best.safetensors holds the version of the highest mean return, which
+    Policy.load reads and `enjoy` repeats from the same seeds."""
+    make_env, decl = custom_env("saver_actor.examples:pointmass")
+    d = os.path.join(TMP, "keep-best")
+    os.makedirs(d)
+    cfg = os.path.join(d, "pm.toml")
+    with open(cfg, "w") as f:
+        f.write("max_episode_steps = 200\n" + decl.toml())
+    srv = learner("keep-best-run", "--config", cfg, "--steps", "20000", "--actors", "1").wait_ready()
+    best = os.path.join(d, "best.safetensors")
+    try:
+        ev = subprocess.Popen(CLI + ["evaluate", "--factory", "saver_actor.examples:pointmass", "--learner",
+                                     srv.url, "--out", best, "--every", "0.5", "--episodes", "4",
+                                     "--max-steps", "50"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        act = subprocess.run(CLI + ["act", "--factory", "saver_actor.examples:pointmass", "--envs", "4",
+                                    "--learner", srv.url], capture_output=True, text=True, timeout=600)
+        assert act.returncode == 0, act.stderr[-2000:]
+        _, err = ev.communicate(timeout=300)
+        assert ev.returncode == 0, err[-2000:]
+    finally:
+        srv.stop()
+    rows = list(csv.DictReader(open(os.path.join(d, "eval.csv"))))
+    assert len(rows) >= 2, (rows, err[-2000:])
+    top = max(rows, key=lambda r: float(r["mean_return"]))
+    policy = Policy.load(best)
+    assert policy.version == int(top["version"]), (policy.version, top)
+    from saver_actor.enjoy import enjoy
+    again = enjoy(make_env, decl, policy, episodes=4, max_steps=50)
+    assert abs(again.mean_return - float(top["mean_return"])) < 1e-6, (again.mean_return, top)
+    print(f"  evaluate: {len(rows)} versions evaluated, best v{policy.version} (mean return "
+          f"{float(top['mean_return']):.3f})")
 
 
 def test_a_discrete_action_env_trains():

@@ -1,0 +1,64 @@
+"""Periodic evaluation of a running learner's policy on the user's own env, keeping
+the best weights (what the learner does itself for the preset envs, which it can step):
+
+    saver-actor evaluate --factory mymodule:make --learner URL --out best.safetensors
+
+Every `every` seconds it takes the learner's newest weights (GetWeights), runs
+`episodes` deterministic episodes from the same env seeds, appends a row to eval.csv
+beside `out`, and writes the weights to `out` (atomically, self-describing, with the
+evaluation in nothing but eval.csv) when they returned more than every version before.
+It ends after evaluating the final version once the run has finished.
+"""
+from __future__ import annotations
+
+import os
+import time
+from typing import Callable, Optional
+
+import grpc
+
+from ._proto import saver_pb2 as pb
+from ._proto import saver_pb2_grpc as pb_grpc
+from .actor import Connection
+from .enjoy import enjoy
+from .env import EnvDecl
+from .policy import Policy
+
+
+def keep_best(make_env: Callable, decl: EnvDecl, conn: Connection, out: str, every: float = 60.0,
+              episodes: int = 10, max_steps: int = 1000, seed: int = 0,
+              log: Callable[[str], None] = print) -> Optional[float]:
+    """Evaluates the learner's newest weights every `every` seconds until its run has
+    finished; returns the best mean return (None if no version was evaluated)."""
+    csv_path = os.path.join(os.path.dirname(os.path.abspath(out)), "eval.csv")
+    best: Optional[float] = None
+    last = -1
+    with conn.channel() as ch:
+        stub = pb_grpc.LearnerStub(ch)
+        while True:
+            status = stub.Status(pb.StatusRequest(), metadata=conn.metadata(), timeout=30)
+            try:
+                w = stub.GetWeights(pb.WeightsRequest(min_version=0), metadata=conn.metadata(), timeout=60)
+            except grpc.RpcError as e:
+                raise RuntimeError(f"the learner at {conn.url}: {e.details()}") from None
+            if w.version != last:
+                last = w.version
+                r = enjoy(make_env, decl, Policy.load(w.safetensors), episodes=episodes, max_steps=max_steps,
+                          seed=seed)
+                better = best is None or r.mean_return > best
+                if better:
+                    best = r.mean_return
+                    tmp = f"{out}.tmp"
+                    with open(tmp, "wb") as f:
+                        f.write(w.safetensors)
+                    os.replace(tmp, out)
+                new = not os.path.exists(csv_path)
+                with open(csv_path, "a") as f:
+                    if new:
+                        f.write("steps,version,episodes,mean_return,success_rate,best\n")
+                    f.write(f"{status.steps},{w.version},{episodes},{r.mean_return},{r.success_rate},{int(better)}\n")
+                log(f"version {w.version} ({status.steps} steps): mean return {r.mean_return:.3f}, success rate "
+                    f"{r.success_rate:.2f}{' (best so far: ' + out + ')' if better else ''}")
+            if status.finished:
+                return best
+            time.sleep(every)
