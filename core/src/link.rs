@@ -88,6 +88,46 @@ fn json<T: serde::Serialize>(v: &T) -> String {
     serde_json::to_string(v).unwrap_or_default()
 }
 
+/// Reads back what [`weights_metadata`] wrote: the env, the algorithm, the policy
+/// family with its parameters (a null parameter, JSON's missing infinity, is no
+/// bound: −∞ for a lower one, +∞ otherwise) and the step limit, as the settings of an
+/// actor that acts with the weights (sync, rollouts of 1, seed 0: evaluation's).
+pub fn settings_from_metadata(meta: &HashMap<String, String>) -> crate::Result<ActorSettings> {
+    use crate::CoreError;
+    let get = |k: &str| {
+        meta.get(k)
+            .ok_or_else(|| CoreError::Checkpoint(format!("its metadata has no {k:?}")))
+    };
+    let bad = |k: &str, e: &dyn std::fmt::Display| CoreError::Checkpoint(format!("{k}: {e}"));
+    let env: EnvSpec = serde_json::from_str(get("env_spec")?).map_err(|e| bad("env_spec", &e))?;
+    let params: std::collections::BTreeMap<String, Option<f64>> =
+        serde_json::from_str(get("policy_params")?).map_err(|e| bad("policy_params", &e))?;
+    let params = params
+        .into_iter()
+        .map(|(k, v)| {
+            let none = if k.ends_with("_min") {
+                f64::NEG_INFINITY
+            } else {
+                f64::INFINITY
+            };
+            (k, v.unwrap_or(none))
+        })
+        .collect();
+    let policy = crate::acting::family_from_wire(get("policy_family")?, env.layout(), &params)?;
+    let max_episode_steps = get("max_episode_steps")?
+        .parse()
+        .map_err(|e| bad("max_episode_steps", &e))?;
+    Ok(ActorSettings {
+        algo: Algo::parse(get("algo")?)?,
+        mode: Mode::Sync,
+        rollout: 1,
+        seed: 0,
+        max_episode_steps,
+        env,
+        policy,
+    })
+}
+
 impl ActorSettings {
     /// The settings of `config`'s actors.
     pub fn of(config: &RunConfig) -> Self {
@@ -155,4 +195,29 @@ pub trait LearnerLink: Send {
     ) -> Result<Arc<PolicyWeights>, LinkError>;
     /// Hands a rollout to the learner.
     fn push(&mut self, rollout: Rollout) -> Result<(), LinkError>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::env::EnvKind;
+
+    /// What the weights metadata says reads back as the run's actor settings: the
+    /// env, the algorithm, the family's parameters (an unbounded μ, written as null,
+    /// back as +∞) and the step limit.
+    #[test]
+    fn weights_metadata_reads_back() {
+        let env = EnvSpec::new(EnvKind::Select, 3).unwrap();
+        let config = RunConfig::paper(&env, Algo::A2c, 0);
+        let back = settings_from_metadata(&weights_metadata(&config)).unwrap();
+        let want = ActorSettings::of(&config);
+        assert_eq!((back.algo, &back.env), (want.algo, &want.env));
+        assert_eq!(back.max_episode_steps, want.max_episode_steps);
+        assert_eq!(back.policy.name(), want.policy.name());
+        assert_eq!(back.policy.params(), want.policy.params());
+        let mut missing = weights_metadata(&config);
+        missing.remove("policy_family");
+        let e = settings_from_metadata(&missing).err().unwrap().to_string();
+        assert!(e.contains("policy_family"), "{e}");
+    }
 }

@@ -6,12 +6,9 @@ use crate::plot::register_font;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use plotters::prelude::*;
-use saver_core::acting::family_from_wire;
 use saver_core::config::RunConfig;
-use saver_core::env::EnvSpec;
 use saver_core::link::{ActorSettings, PolicyWeights};
 use saver_core::rng::{rng_for, streams};
-use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -184,7 +181,7 @@ pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
     let bytes = std::fs::read(source).with_context(|| format!("reading {}", source.display()))?;
     let (tensors, meta) =
         saver_proto::decode(&bytes).with_context(|| source.display().to_string())?;
-    let settings = settings_of(&meta).with_context(|| {
+    let settings = saver_core::link::settings_from_metadata(&meta).with_context(|| {
         format!(
             "{}: not a self-describing SAVER weights file",
             source.display()
@@ -195,43 +192,6 @@ pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
         .and_then(|v| v.parse().ok())
         .unwrap_or(0);
     Ok((settings, Arc::new(PolicyWeights { version, tensors })))
-}
-
-/// What a weights file's metadata says (`saver_core::link::weights_metadata`).
-fn settings_of(meta: &HashMap<String, String>) -> Result<ActorSettings> {
-    let get = |k: &str| {
-        meta.get(k)
-            .with_context(|| format!("its metadata has no {k:?}"))
-    };
-    let env: EnvSpec = serde_json::from_str(get("env_spec")?).context("env_spec")?;
-    let params: BTreeMap<String, Option<f64>> =
-        serde_json::from_str(get("policy_params")?).context("policy_params")?;
-    // null is no bound: -inf for a lower one, inf otherwise.
-    let params = params
-        .into_iter()
-        .map(|(k, v)| {
-            let none = if k.ends_with("_min") {
-                f64::NEG_INFINITY
-            } else {
-                f64::INFINITY
-            };
-            (k, v.unwrap_or(none))
-        })
-        .collect();
-    let policy = family_from_wire(get("policy_family")?, env.layout(), &params)?;
-    let algo = saver_core::config::Algo::parse(get("algo")?)?;
-    let max_episode_steps = get("max_episode_steps")?
-        .parse()
-        .context("max_episode_steps")?;
-    Ok(ActorSettings {
-        algo,
-        mode: saver_core::config::Mode::Sync,
-        rollout: 1,
-        seed: 0,
-        max_episode_steps,
-        env,
-        policy,
-    })
 }
 
 /// Runs `saver eval`.

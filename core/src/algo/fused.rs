@@ -294,11 +294,7 @@ fn unit_body(job: &Job, j: usize, b0: usize, s: &mut Scratch) -> UnitOut {
         for (v, &bias) in urow.iter_mut().zip(b2) {
             *v = (*v + bias).max(0.0);
         }
-        let base = if x.tau_base == 0.0 {
-            0.0
-        } else {
-            x.tau_base * (2.0 * tau - 1.0)
-        };
+        let base = crate::nets::base_quantile(x.tau_base, tau);
         s.q.push(dot(urow, w3) + b3 + base);
     }
 

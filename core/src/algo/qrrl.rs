@@ -22,7 +22,7 @@ use super::{batch_returns, check_finite, tau_tensors, update_rows, Algorithm, Gr
 use super::{UpdateStats, RNG_WORD_POS};
 use crate::config::{RunConfig, SaverConfig};
 use crate::env::EnvLayout;
-use crate::nets::{Critic, ParamSet, Pcpn, QuantileFamily, QUANTILE_PREFIX};
+use crate::nets::{base_quantiles, Critic, ParamSet, Pcpn, QuantileFamily, QUANTILE_PREFIX};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
@@ -146,7 +146,7 @@ pub fn qrrl_actor_losses(
     let k = taus.len() / (a * b);
     let (tau, cos) = tau_tensors(taus, a, b, k, obs.device())?;
     // Q = network + the base quantile function s·(2τ − 1).
-    let base = ((&tau * 2.0)? - 1.0)?.affine(cfg.qrrl_spread, 0.0)?;
+    let base = base_quantiles(&tau, cfg.qrrl_spread)?;
     let q = (net.forward(obs, &cos)? + base)?; // [A, B, K]
     let l = weighted_quantile_losses(&q, actions, advantage, &tau, cfg)?;
     Ok((l.actor, l.mon))

@@ -14,7 +14,9 @@ pub use policy::{
     gaussian_log_prob, sample_softmax as sample_softmax_pub, slack, Gaussian, Policy,
     ACTION_SIGMAS, UNBOUNDED_LOG_STD, UNBOUNDED_MU,
 };
-pub use quantile_policy::{QuantileFamily, QuantilePolicy, QUANTILE_PREFIX};
+pub use quantile_policy::{
+    base_quantile, base_quantiles, QuantileFamily, QuantilePolicy, QUANTILE_PREFIX,
+};
 
 use crate::rng::{glorot_uniform, SaverRng};
 use crate::{CoreError, Result};

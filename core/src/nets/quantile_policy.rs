@@ -19,6 +19,22 @@ use std::sync::Arc;
 /// Prefix of the quantile policy's tensors.
 pub const QUANTILE_PREFIX: &str = "agent.q";
 
+/// The base quantile function s·(2τ − 1) added to the network's output (so the
+/// untrained policy is U(−s, s)); 0 exactly when s = 0. The one definition, acting,
+/// the autograd update ([`base_quantiles`]) and the fused update use.
+pub fn base_quantile(spread: f32, tau: f32) -> f32 {
+    if spread == 0.0 {
+        0.0
+    } else {
+        spread * (2.0 * tau - 1.0)
+    }
+}
+
+/// [`base_quantile`] of every τ of a tensor.
+pub fn base_quantiles(tau: &candle_core::Tensor, spread: f64) -> Result<candle_core::Tensor> {
+    Ok(((tau * 2.0)? - 1.0)?.affine(spread, 0.0)?)
+}
+
 /// The quantile-network family in one env layout (continuous actions only).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct QuantileFamily {
@@ -174,7 +190,7 @@ impl QuantilePolicy {
                 &mut u,
             );
             let w = &w3[j * hh..(j + 1) * hh];
-            let base = self.spread * (2.0 * tau - 1.0);
+            let base = base_quantile(self.spread, tau);
             action.push(u.iter().zip(w).map(|(a, b)| a * b).sum::<f32>() + b3[j] + base);
         }
         self.buf = [h, z, u, cos, prod];
