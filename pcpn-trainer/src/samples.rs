@@ -13,8 +13,8 @@
 //! INVALID_ARGUMENT and its chunk is given back too.
 
 use rand::Rng;
+use saver_core::env::slack;
 use saver_core::env::EnvSpec;
-use saver_core::nets::slack;
 use saver_core::pretrain::{SampleSource, Samples};
 use saver_core::rng::{rng_for, SaverRng};
 use saver_core::{CoreError, Result};

@@ -17,7 +17,7 @@ use saver_core::algo::{build, threads_for, Algorithm, GradPath};
 use saver_core::config::PretrainConfig;
 use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvLayout, EnvSpec};
-use saver_core::nets::{ParamSet, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
+use saver_core::nets::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
 use saver_core::pretrain::{EnvSampler, Pretrainer};
 use saver_core::rng::{rng_for, uniform01};
 use saver_core::rollout::Batch;
@@ -198,12 +198,12 @@ fn synthetic_batch(l: &EnvLayout, seed: u64) -> Batch {
 
 /// An untrained frozen PCPN (timing does not depend on its training).
 pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
-    let mut params = ParamSet::default();
-    let p = Pcpn::init(&spec.layout(), &mut rng_for(0, 3), dev, &mut params)?;
-    let tensors = p.tensors()?;
-    Ok(Pcpn::frozen(&spec.layout(), &|n| {
-        tensors.iter().find(|(k, _)| k == n).map(|(_, t)| t.clone())
-    })?)
+    Ok(Pcpn::random_frozen(
+        &spec.layout(),
+        0,
+        candle_core::DType::F32,
+        dev,
+    )?)
 }
 
 /// Seconds per update of `algo` on angle d (a synthetic batch, a random PCPN), with

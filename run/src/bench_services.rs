@@ -42,7 +42,10 @@ pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64, Opti
     ));
     let pcpn = algo
         .has_pcpn()
-        .then(|| crate::bench::random_pcpn(&spec, &candle_core::Device::Cpu))
+        .then(|| {
+            let cpu = candle_core::Device::Cpu;
+            saver_core::nets::Pcpn::random_frozen(&spec.layout(), 0, candle_core::DType::F32, &cpu)
+        })
         .transpose()?;
     let emb = train_with(
         &config,

@@ -2,7 +2,7 @@
 //! success rate, episode lengths, returns and the final distance to the goal per
 //! state-aligned coordinate; with `--trajectory`, a picture of what it does (2-D envs).
 
-use crate::plot::register_font;
+use crate::figures::register_font;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use plotters::prelude::*;

@@ -1,11 +1,9 @@
-//! `saver plot` and the run folder's learning curve: reading metrics.csv and the
-//! command; the drawing is figures.rs.
+//! `saver plot` and the run folder's learning curve: the command; reading metrics.csv
+//! and the drawing are figures.rs.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::Args;
-use plotters::style::FontStyle;
 use std::path::{Path, PathBuf};
-use std::sync::Once;
 
 /// `saver plot` flags.
 #[derive(Args, Clone, Debug)]
@@ -40,48 +38,6 @@ pub fn run(args: PlotArgs) -> Result<()> {
         md.display()
     );
     Ok(())
-}
-
-/// (steps, mean episode length) points of a run's metrics.csv, from the row where
-/// 100 episodes have finished (before it the "last 100 episodes" are a few short
-/// ones, which would put a curve below any threshold by chance).
-pub fn read_curve(run: &Path) -> Result<Vec<(f64, f64)>> {
-    let path = run.join("metrics.csv");
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name);
-    let (Some(s), Some(m)) = (col("steps"), col("mean_ep_len_100")) else {
-        bail!("{}: no steps / mean_ep_len_100 columns", path.display());
-    };
-    let episodes = col("episodes");
-    let mut points = Vec::new();
-    for line in lines {
-        let f: Vec<&str> = line.split(',').collect();
-        let full = episodes
-            .and_then(|e| f.get(e)?.parse::<u64>().ok())
-            .is_none_or(|n| n >= 100);
-        if let (true, Some(Ok(x)), Some(Ok(y))) = (
-            full,
-            f.get(s).map(|v| v.parse()),
-            f.get(m).map(|v| v.parse()),
-        ) {
-            points.push((x, y));
-        }
-    }
-    Ok(points)
-}
-
-pub(crate) fn register_font() {
-    static ONCE: Once = Once::new();
-    ONCE.call_once(|| {
-        let _ = plotters::style::register_font(
-            "sans-serif",
-            FontStyle::Normal,
-            dejavu::sans::regular(),
-        );
-    });
 }
 
 /// Draws the runs' curves into `png` (as `saver plot` does: seeds of one setting

@@ -12,15 +12,7 @@ use candle_core::{DType, Device, Tensor, Var};
 use std::sync::Arc;
 
 pub(super) fn random_pcpn(layout: &EnvLayout, dtype: DType) -> Pcpn {
-    let mut params = ParamSet::default();
-    let p = Pcpn::init(layout, &mut rng_for(11, 3), &Device::Cpu, &mut params).unwrap();
-    let t = p.tensors().unwrap();
-    Pcpn::frozen(layout, &|n| {
-        t.iter()
-            .find(|(k, _)| k == n)
-            .map(|(_, x)| x.to_dtype(dtype).unwrap())
-    })
-    .unwrap()
+    Pcpn::random_frozen(layout, 11, dtype, &Device::Cpu).unwrap()
 }
 
 pub(super) fn uniform(rng: &mut crate::rng::SaverRng, n: usize, lo: f32, hi: f32) -> Vec<f32> {

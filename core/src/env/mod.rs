@@ -17,6 +17,12 @@ pub use success::SuccessRule;
 use crate::rng::SaverRng;
 use crate::{CoreError, Result};
 
+/// Rounding slack of a bound `b`: values up to `b·(1 + 1e-5) + 1e-6` pass (the env's
+/// bounds, the policy head's, the success radius).
+pub fn slack(b: f32) -> f32 {
+    b.abs() * 1e-5 + 1e-6
+}
+
 /// Success radius: every aligned coordinate strictly within this of the goal.
 pub const SUCCESS_RADIUS: f32 = 0.1;
 

@@ -3,8 +3,8 @@
 //! angle, select and arm are presets of it ([`EnvKind`]); a user's env is a spec of its
 //! own ([`EnvSpec::custom`]) whose actors bring the env itself.
 
+use super::slack;
 use super::{Angle, Arm, Env, Select, SuccessRule, SUCCESS_RADIUS};
-use crate::nets::slack;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 use std::fmt;

@@ -4,7 +4,7 @@
 //! (docs/ALGORITHM.md §2, rule 4; a custom env declares it, or has none when its own
 //! `terminated` is the success.)
 
-use crate::nets::slack;
+use super::slack;
 use serde::{Deserialize, Serialize};
 
 /// Success: `max_j |p'_j − g_j| < radius`, with `g` the `dim` observation entries from

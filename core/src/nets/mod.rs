@@ -11,8 +11,8 @@ pub use agent::{Agent, AgentOut, HeadConfig};
 pub use critic::Critic;
 pub use pcpn::{quantile_net_shapes, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
 pub use policy::{
-    gaussian_log_prob, sample_softmax as sample_softmax_pub, slack, Gaussian, Policy,
-    ACTION_SIGMAS, UNBOUNDED_LOG_STD, UNBOUNDED_MU,
+    gaussian_log_prob, sample_softmax as sample_softmax_pub, Gaussian, Policy, ACTION_SIGMAS,
+    UNBOUNDED_LOG_STD, UNBOUNDED_MU,
 };
 pub use quantile_policy::{
     base_quantile, base_quantiles, QuantileFamily, QuantilePolicy, QUANTILE_PREFIX,

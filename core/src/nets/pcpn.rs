@@ -69,6 +69,24 @@ pub fn quantile_net_shapes(prefix: &str, input: usize, dim: usize) -> Vec<(Strin
 }
 
 impl Pcpn {
+    /// An untrained frozen PCPN of `layout` (Glorot weights from stream 3 of `seed`,
+    /// as `dtype`): what timings and tests use where training does not matter.
+    pub fn random_frozen(
+        layout: &EnvLayout,
+        seed: u64,
+        dtype: candle_core::DType,
+        dev: &Device,
+    ) -> Result<Self> {
+        let mut params = ParamSet::default();
+        let p = Self::init(layout, &mut crate::rng::rng_for(seed, 3), dev, &mut params)?;
+        let t = p.tensors()?;
+        Self::frozen(layout, &|n| {
+            t.iter()
+                .find(|(k, _)| k == n)
+                .and_then(|(_, x)| x.to_dtype(dtype).ok())
+        })
+    }
+
     /// A trainable PCPN with fresh Glorot weights; its variables go into `params`.
     pub fn init(
         layout: &EnvLayout,

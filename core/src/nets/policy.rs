@@ -6,6 +6,7 @@
 
 use super::{HeadConfig, TRUNK};
 use crate::acting::{ActingPolicy, PolicyFamily};
+use crate::env::slack;
 use crate::env::EnvLayout;
 use crate::link::PolicyWeights;
 use crate::rng::{normal, SaverRng};
@@ -23,11 +24,6 @@ pub const UNBOUNDED_LOG_STD: f32 = 20.0;
 /// A sampled action lies within this many σ of its mean (a 16-σ draw has probability
 /// below 1e-57).
 pub const ACTION_SIGMAS: f32 = 16.0;
-
-/// Rounding slack of a bound `b`: values up to `b·(1 + 1e-5) + 1e-6` pass.
-pub fn slack(b: f32) -> f32 {
-    b.abs() * 1e-5 + 1e-6
-}
 
 /// The Gaussian MLP family in one env layout with one head.
 #[derive(Clone, Copy, Debug, PartialEq)]
