@@ -5,9 +5,9 @@
 //! algorithm uses is its own choice ([`crate::algo::entry`]).
 
 use crate::env::EnvLayout;
-use crate::link::PolicyWeights;
 use crate::rng::SaverRng;
 use crate::Result;
+use saver_proto::NamedTensor;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
@@ -53,25 +53,18 @@ pub trait PolicyFamily: Send + Sync + std::fmt::Debug {
     fn architecture(&self) -> String;
 }
 
-/// The family a peer names on the wire, in `layout`, with its `params`.
-pub fn family_from_wire(
-    name: &str,
-    layout: EnvLayout,
-    params: &BTreeMap<String, f64>,
-) -> Result<Arc<dyn PolicyFamily>> {
-    match name {
-        "gaussian-mlp" => Ok(Arc::new(crate::nets::Gaussian::from_params(
-            layout, params,
-        )?)),
-        "quantile-mlp" => {
-            let spread = params.get("spread").copied().ok_or_else(|| {
-                crate::CoreError::Config("quantile-mlp policy: parameter spread is missing".into())
-            })?;
-            Ok(Arc::new(crate::nets::QuantileFamily::new(layout, spread)?))
-        }
-        other => Err(crate::CoreError::Config(format!(
-            "policy family {:?} is not one this build knows (gaussian-mlp, quantile-mlp)",
-            crate::clip_text(other)
-        ))),
+/// One published version of the agent's weights, shared (never copied) by all readers.
+#[derive(Debug)]
+pub struct PolicyWeights {
+    /// Number of updates behind these weights.
+    pub version: u64,
+    /// The agent's tensors (`agent.*`).
+    pub tensors: Vec<NamedTensor>,
+}
+
+impl PolicyWeights {
+    /// The tensor named `name`.
+    pub fn get(&self, name: &str) -> Option<&NamedTensor> {
+        self.tensors.iter().find(|t| t.name == name)
     }
 }

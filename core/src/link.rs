@@ -3,10 +3,10 @@
 //! run implements it in-process; the gRPC client implements it over the network.
 
 use crate::acting::PolicyFamily;
+pub use crate::acting::PolicyWeights;
 use crate::config::{Algo, Mode, RunConfig};
 use crate::env::EnvSpec;
 use crate::rollout::Rollout;
-use saver_proto::NamedTensor;
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
@@ -113,7 +113,7 @@ pub fn settings_from_metadata(meta: &HashMap<String, String>) -> crate::Result<A
             (k, v.unwrap_or(none))
         })
         .collect();
-    let policy = crate::acting::family_from_wire(get("policy_family")?, env.layout(), &params)?;
+    let policy = crate::nets::family_from_wire(get("policy_family")?, env.layout(), &params)?;
     let max_episode_steps = get("max_episode_steps")?
         .parse()
         .map_err(|e| bad("max_episode_steps", &e))?;
@@ -140,22 +140,6 @@ impl ActorSettings {
             env: config.env.clone(),
             policy: crate::algo::policy_family(config),
         }
-    }
-}
-
-/// One published version of the agent's weights, shared (never copied) by all readers.
-#[derive(Debug)]
-pub struct PolicyWeights {
-    /// Number of updates behind these weights.
-    pub version: u64,
-    /// The agent's tensors (`agent.*`).
-    pub tensors: Vec<NamedTensor>,
-}
-
-impl PolicyWeights {
-    /// The tensor named `name`.
-    pub fn get(&self, name: &str) -> Option<&NamedTensor> {
-        self.tensors.iter().find(|t| t.name == name)
     }
 }
 

@@ -73,7 +73,7 @@ impl TryFrom<&pb::RunSettings> for ActorSettings {
         let env = EnvSpec::try_from(s.env.as_ref().ok_or_else(|| bad("no env".into()))?)?;
         let p = s.policy.as_ref().ok_or_else(|| bad("no policy".into()))?;
         let params = p.params.iter().map(|(k, v)| (k.clone(), *v)).collect();
-        let policy = crate::acting::family_from_wire(&p.family, env.layout(), &params)?;
+        let policy = crate::nets::family_from_wire(&p.family, env.layout(), &params)?;
         if policy.payload_width() != p.payload_width as usize {
             return Err(bad(format!(
                 "payload width {} where {} has {}",

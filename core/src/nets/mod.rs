@@ -113,7 +113,7 @@ impl ParamSet {
 /// The index of tensor `name` in published `weights`, checked to have `shape` (actors
 /// index their policy's tensors once per version).
 pub(crate) fn weight_index(
-    weights: &crate::link::PolicyWeights,
+    weights: &crate::acting::PolicyWeights,
     name: &str,
     shape: &[usize],
 ) -> Result<usize> {
@@ -172,4 +172,25 @@ pub(crate) fn mlp_forward(
         }
     }
     Ok(h)
+}
+
+/// The family a peer names on the wire, in `layout`, with its `params`.
+pub fn family_from_wire(
+    name: &str,
+    layout: crate::env::EnvLayout,
+    params: &std::collections::BTreeMap<String, f64>,
+) -> crate::Result<std::sync::Arc<dyn crate::acting::PolicyFamily>> {
+    match name {
+        "gaussian-mlp" => Ok(std::sync::Arc::new(Gaussian::from_params(layout, params)?)),
+        "quantile-mlp" => {
+            let spread = params.get("spread").copied().ok_or_else(|| {
+                crate::CoreError::Config("quantile-mlp policy: parameter spread is missing".into())
+            })?;
+            Ok(std::sync::Arc::new(QuantileFamily::new(layout, spread)?))
+        }
+        other => Err(crate::CoreError::Config(format!(
+            "policy family {:?} is not one this build knows (gaussian-mlp, quantile-mlp)",
+            crate::clip_text(other)
+        ))),
+    }
 }

@@ -5,10 +5,10 @@
 //! step (μ then log σ) and the values the learner accepts.
 
 use super::{HeadConfig, TRUNK};
+use crate::acting::PolicyWeights;
 use crate::acting::{ActingPolicy, PolicyFamily};
 use crate::env::slack;
 use crate::env::EnvLayout;
-use crate::link::PolicyWeights;
 use crate::rng::{normal, SaverRng};
 use crate::{CoreError, Result};
 use rand::Rng;

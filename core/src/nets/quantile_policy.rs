@@ -6,11 +6,11 @@
 //! step records its τ. Acting runs in plain Rust over the published weights.
 
 use super::{host_dense, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, UNBOUNDED_MU};
+use crate::acting::PolicyWeights;
 use crate::acting::{ActingPolicy, PolicyFamily};
 use crate::embedding::cosine_embedding_into;
 use crate::env::slack;
 use crate::env::EnvLayout;
-use crate::link::PolicyWeights;
 use crate::rng::SaverRng;
 use crate::{CoreError, Result};
 use rand::Rng;
