@@ -5,7 +5,6 @@
 //! Adam with TensorFlow-1 semantics: `lr_t = lr·√(1 − β2^t)/(1 − β1^t)`,
 //! `θ ← θ − lr_t·m/(√v + ε̂)`.
 
-use crate::config::RunConfig;
 use crate::{CoreError, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
 use serde::{Deserialize, Serialize};
@@ -123,17 +122,6 @@ impl Optimizer {
             t: 0,
             clip,
             decay_over: None,
-        })
-    }
-
-    /// The optimiser a run's config asks for: its kind, learning rate, gradient clip
-    /// and, with `lr_decay`, a rate that falls linearly to zero over the run's updates.
-    pub fn for_run(vars: Vec<(String, Var)>, config: &RunConfig) -> Result<Self> {
-        let opt = Self::with_clip(vars, config.optimizer.tf1(), config.lr, config.grad_clip)?;
-        Ok(if config.lr_decay {
-            opt.decaying_over(config.steps.div_ceil(config.batch_transitions()))
-        } else {
-            opt
         })
     }
 

@@ -285,3 +285,23 @@ pub(crate) mod test_util {
         (scale, worst)
     }
 }
+
+/// The optimiser a run's config asks for over `vars`: its kind, learning rate,
+/// gradient clip and, with `lr_decay`, a rate that falls linearly to zero over the
+/// run's updates (beside the registry, so that optim.rs knows no config).
+pub(crate) fn run_optimizer(
+    vars: Vec<(String, candle_core::Var)>,
+    config: &RunConfig,
+) -> Result<crate::optim::Optimizer> {
+    let opt = crate::optim::Optimizer::with_clip(
+        vars,
+        config.optimizer.tf1(),
+        config.lr,
+        config.grad_clip,
+    )?;
+    Ok(if config.lr_decay {
+        opt.decaying_over(config.steps.div_ceil(config.batch_transitions()))
+    } else {
+        opt
+    })
+}

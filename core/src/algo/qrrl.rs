@@ -113,7 +113,7 @@ impl Qrrl {
             net,
             net_params,
             critic,
-            opt: Optimizer::for_run(vars, config)?,
+            opt: super::run_optimizer(vars, config)?,
             rng: rng_for(config.seed, streams::LEARNER),
             layout,
             gamma: config.gamma as f32,

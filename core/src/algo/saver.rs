@@ -134,7 +134,7 @@ impl Saver {
         let critic = Critic::new(&layout, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
-        let opt = Optimizer::for_run(vars, config)?;
+        let opt = super::run_optimizer(vars, config)?;
         Ok(Self {
             agent,
             critic,
