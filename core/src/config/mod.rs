@@ -3,10 +3,12 @@
 //! files are its partial form ([`crate::settings`]). Defaults and where they differ from
 //! the paper: docs/ALGORITHM.md.
 
+mod head;
 mod kinds;
 mod pretrain;
 pub(crate) mod unbounded;
 
+pub use head::HeadConfig;
 pub use kinds::{Algo, DeltaTarget, Mode, OptimizerKind, SampleDistribution};
 pub use pretrain::{
     paper_lr, paper_pretrain_batches, preset_or_angle, PretrainConfig, PRETRAIN_EVAL_BATCHES,
@@ -14,7 +16,6 @@ pub use pretrain::{
 pub(crate) use unbounded::{inf_is_none, neg_inf_is_none, zero_is_none};
 
 use crate::env::{EnvKind, EnvSpec};
-use crate::nets::HeadConfig;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 
@@ -385,7 +386,7 @@ impl RunConfig {
             }
         }
         if self.algo == Algo::Qrrl {
-            crate::nets::QuantileFamily::new(self.env.layout(), self.saver.qrrl_spread)?;
+            check_quantile_policy(self.env.layout(), self.saver.qrrl_spread)?;
         }
         if self.saver.qrrl_vector && !(self.algo == Algo::Qrrl && self.env.actions_aligned()) {
             return bad(
@@ -432,6 +433,25 @@ impl RunConfig {
              {body}"
         )
     }
+}
+
+/// What the quantile-network policy (QRRL's) can act in: continuous action dims only
+/// (a categorical choice is no quantile of anything) and a finite spread s ≥ 0 of its
+/// base quantile function. `nets::QuantileFamily::new` holds its family to it.
+pub fn check_quantile_policy(layout: crate::env::EnvLayout, spread: f64) -> Result<()> {
+    if layout.choices > 0 || layout.continuous == 0 {
+        return Err(CoreError::Config(format!(
+            "algo qrrl: the quantile policy acts in continuous action dims only; this env \
+             has {} continuous dims and a choice of {}",
+            layout.continuous, layout.choices
+        )));
+    }
+    if !(spread.is_finite() && spread >= 0.0) {
+        return Err(CoreError::Config(format!(
+            "quantile-mlp policy: spread {spread} must be finite and >= 0"
+        )));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

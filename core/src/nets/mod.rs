@@ -7,7 +7,8 @@ mod pcpn;
 mod policy;
 mod quantile_policy;
 
-pub use agent::{Agent, AgentOut, HeadConfig};
+pub use crate::config::HeadConfig;
+pub use agent::{Agent, AgentOut};
 pub use critic::Critic;
 pub use pcpn::{quantile_net_shapes, Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
 pub use policy::{

@@ -49,18 +49,7 @@ impl QuantileFamily {
     /// The family in `layout`; refused for a layout with a categorical choice, which
     /// is not a quantile of anything.
     pub fn new(layout: EnvLayout, spread: f64) -> Result<Self> {
-        if layout.choices > 0 || layout.continuous == 0 {
-            return Err(CoreError::Config(format!(
-                "algo qrrl: the quantile policy acts in continuous action dims only; this \
-                 env has {} continuous dims and a choice of {}",
-                layout.continuous, layout.choices
-            )));
-        }
-        if !(spread.is_finite() && spread >= 0.0) {
-            return Err(CoreError::Config(format!(
-                "quantile-mlp policy: spread {spread} must be finite and >= 0"
-            )));
-        }
+        crate::config::check_quantile_policy(layout, spread)?;
         Ok(Self { layout, spread })
     }
 }
