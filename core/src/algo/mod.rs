@@ -255,6 +255,26 @@ pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
     }
 }
 
+/// The optimiser a run's config asks for over `vars`: its kind, learning rate,
+/// gradient clip and, with `lr_decay`, a rate that falls linearly to zero over the
+/// run's updates (beside the registry, so that optim.rs knows no config).
+pub(crate) fn run_optimizer(
+    vars: Vec<(String, candle_core::Var)>,
+    config: &RunConfig,
+) -> Result<crate::optim::Optimizer> {
+    let opt = crate::optim::Optimizer::with_clip(
+        vars,
+        config.optimizer.tf1(),
+        config.lr,
+        config.grad_clip,
+    )?;
+    Ok(if config.lr_decay {
+        opt.decaying_over(config.steps.div_ceil(config.batch_transitions()))
+    } else {
+        opt
+    })
+}
+
 #[cfg(test)]
 mod signal_tests;
 #[cfg(test)]
@@ -284,24 +304,4 @@ pub(crate) mod test_util {
             .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
         (scale, worst)
     }
-}
-
-/// The optimiser a run's config asks for over `vars`: its kind, learning rate,
-/// gradient clip and, with `lr_decay`, a rate that falls linearly to zero over the
-/// run's updates (beside the registry, so that optim.rs knows no config).
-pub(crate) fn run_optimizer(
-    vars: Vec<(String, candle_core::Var)>,
-    config: &RunConfig,
-) -> Result<crate::optim::Optimizer> {
-    let opt = crate::optim::Optimizer::with_clip(
-        vars,
-        config.optimizer.tf1(),
-        config.lr,
-        config.grad_clip,
-    )?;
-    Ok(if config.lr_decay {
-        opt.decaying_over(config.steps.div_ceil(config.batch_transitions()))
-    } else {
-        opt
-    })
 }

@@ -6,7 +6,7 @@ use super::*;
 use crate::config::{Algo, RunConfig};
 use crate::env::{EnvKind, EnvLayout, EnvSpec};
 use crate::link::PolicyWeights;
-use crate::nets::{Agent, ParamSet, Pcpn, Policy};
+use crate::nets::{Agent, Pcpn, Policy};
 use crate::rng::{rng_for, uniform01};
 use candle_core::{DType, Device, Tensor, Var};
 use std::sync::Arc;
