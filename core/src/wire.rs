@@ -29,7 +29,7 @@ impl From<&EnvSpec> for pb::EnvSpec {
     fn from(s: &EnvSpec) -> Self {
         let b = s.bounds();
         // A preset's rule is its kind's: only a custom env's travels.
-        let rule = s.kind().is_none().then(|| s.success_rule()).flatten();
+        let rule = s.declared_success();
         Self {
             kind: s.name().to_string(),
             dim: s.dim() as u32,

@@ -42,6 +42,10 @@ pub struct PolicyFiles {
     evaluator: Option<Evaluator>,
     /// The best mean return so far (read back from best.safetensors on a resume).
     best: Option<f32>,
+    /// The versions last written to policy.safetensors and last evaluated: a run
+    /// whose end falls on a checkpoint or an evaluation does neither twice.
+    newest: Option<u64>,
+    evaluated: Option<u64>,
 }
 
 fn io(what: &str, path: &Path, e: std::io::Error) -> CoreError {
@@ -61,6 +65,8 @@ impl PolicyFiles {
             about,
             evaluator,
             best,
+            newest: None,
+            evaluated: None,
         }
     }
 
@@ -74,19 +80,29 @@ impl PolicyFiles {
         Ok(())
     }
 
-    /// Writes policy.safetensors.
-    pub fn save_newest(&self, w: &PolicyWeights) -> Result<()> {
-        self.write(POLICY_FILE, w, &[])
+    /// Writes policy.safetensors (unless it holds this version already).
+    pub fn save_newest(&mut self, w: &PolicyWeights) -> Result<()> {
+        if self.newest != Some(w.version) {
+            self.write(POLICY_FILE, w, &[])?;
+            self.newest = Some(w.version);
+        }
+        Ok(())
     }
 
     /// Evaluates `w` (at `steps` env steps), adds a row to eval.csv and, when it
     /// returned more than every evaluation before, writes best.safetensors. Returns
-    /// the evaluation, if there is an evaluator.
+    /// the evaluation, if there is an evaluator and this version was not evaluated
+    /// just before.
     pub fn evaluate(&mut self, steps: u64, w: Arc<PolicyWeights>) -> Result<Option<Evaluation>> {
-        let Some(evaluate) = self.evaluator.as_mut() else {
+        let version = w.version;
+        let Some(evaluate) = self
+            .evaluator
+            .as_mut()
+            .filter(|_| self.evaluated != Some(version))
+        else {
             return Ok(None);
         };
-        let version = w.version;
+        self.evaluated = Some(version);
         let e = evaluate(w.clone())?;
         let better = self.best.is_none_or(|b| e.mean_return > b);
         if better {
@@ -159,6 +175,8 @@ mod tests {
             files.evaluate(v * 100, weights(v, x)).unwrap();
             files.save_newest(&weights(v, x)).unwrap();
         }
+        // The run's end on the version just evaluated: no second row.
+        assert_eq!(files.evaluate(300, weights(3, 2.0)).unwrap(), None);
         let read = |f: &str| {
             let (t, m) = saver_proto::decode(&std::fs::read(dir.join(f)).unwrap()).unwrap();
             (t[0].data[0], m)

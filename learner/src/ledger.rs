@@ -82,6 +82,8 @@ impl Ledger {
         let d = r.vector_reward.len() / (e * n).max(1);
         let continues = r.seq == self.next_seq && self.envs.len() == e;
         let motion = Motion::new(r, rules.layout);
+        // Where the step in hand went, p + Δp (one buffer for the whole rollout).
+        let mut reached = Vec::with_capacity(rules.layout.aligned_dim);
         let mut envs = Vec::with_capacity(e);
         let mut ends = Vec::with_capacity(e);
         let mut verified = Vec::with_capacity(r.episodes.len());
@@ -98,7 +100,7 @@ impl Ledger {
             }
             for t in 0..n {
                 let s = i * n + t;
-                let reached = motion.step(i, t, r.done[s])?;
+                motion.step(i, t, r.done[s], &mut reached)?;
                 if let Some((steps, ret)) = &mut run {
                     *steps += 1;
                     *ret += r.vector_reward[s * d..(s + 1) * d].iter().sum::<f32>();
@@ -203,16 +205,18 @@ impl<'a> Motion<'a> {
         &self.obs(i, t)[l.aligned_start..l.aligned_start + l.aligned_dim]
     }
 
-    /// Where step `t` of env `i` went, p + Δp, checked against the p' that follows it
-    /// when the rollout holds it (the next observation, or a timeout's final one).
-    fn step(&self, i: usize, t: usize, done: bool) -> Result<Vec<f32>> {
+    /// Where step `t` of env `i` went, p + Δp, into `reached`, checked against the p'
+    /// that follows it when the rollout holds it (the next observation, or a timeout's
+    /// final one).
+    fn step(&self, i: usize, t: usize, done: bool, reached: &mut Vec<f32>) -> Result<()> {
         let (d, s) = (self.layout.aligned_dim, i * self.r.n_steps + t);
         let p = self.aligned(i, t);
-        let reached: Vec<f32> = p
-            .iter()
-            .zip(&self.r.state_delta[s * d..(s + 1) * d])
-            .map(|(p, dp)| p + dp)
-            .collect();
+        reached.clear();
+        reached.extend(
+            p.iter()
+                .zip(&self.r.state_delta[s * d..(s + 1) * d])
+                .map(|(p, dp)| p + dp),
+        );
         let next = if !done {
             Some(self.aligned(i, t + 1))
         } else {
@@ -227,23 +231,27 @@ impl<'a> Motion<'a> {
                 })
         };
         if let Some(next) = next {
-            self.agrees(&reached, next, p, &format!("step {t} of env {i}"))?;
+            self.agrees(reached, next, p, || format!("step {t} of env {i}"))?;
         }
-        Ok(reached)
+        Ok(())
     }
 
     /// A continuing rollout's env `i` starts where the one before ended (`end`).
     fn starts_at(&self, i: usize, end: &[f32]) -> Result<()> {
-        self.agrees(
-            end,
-            self.aligned(i, 0),
-            end,
-            &format!("env {i}'s first observation"),
-        )
+        self.agrees(end, self.aligned(i, 0), end, || {
+            format!("env {i}'s first observation")
+        })
     }
 
-    /// Refuses `got` (a p' reported) that is not `want` (p + Δp) up to rounding.
-    fn agrees(&self, want: &[f32], got: &[f32], p: &[f32], what: &str) -> Result<()> {
+    /// Refuses `got` (a p' reported) that is not `want` (p + Δp) up to rounding; `what`
+    /// names the place, only when it is refused.
+    fn agrees(
+        &self,
+        want: &[f32],
+        got: &[f32],
+        p: &[f32],
+        what: impl FnOnce() -> String,
+    ) -> Result<()> {
         let off = (0..want.len()).find(|&j| {
             let diff = (want[j] - got[j]).abs();
             diff.is_nan() || diff > tolerance(p[j], got[j])
@@ -251,9 +259,10 @@ impl<'a> Motion<'a> {
         match off {
             None => Ok(()),
             Some(j) => Err(CoreError::Data(format!(
-                "{what}: aligned entry {} is {}, but the position before it plus its \
+                "{}: aligned entry {} is {}, but the position before it plus its \
                  state change is {} (each step moves p by exactly its state_delta, and \
                  a rollout starts where the one before ended)",
+                what(),
                 self.layout.aligned_start + j,
                 got[j],
                 want[j]

@@ -205,16 +205,8 @@ class EnvDecl:
                 f"[{lo[k]}, {hi[k]}]; widen obs_low/obs_high (the learner's config too)")
 
     def env_actions(self, actions: np.ndarray, space) -> list:
-        """The env's action for each of the agent's [E, action_dim]: continuous values
-        clipped to [-1, 1] and scaled to the Box; a choice's one-hot as its index."""
-        if self.choices:
-            return [int(i) for i in np.argmax(actions[:, self.continuous:], axis=1)]
-        a = np.clip(actions[:, : self.continuous], -1.0, 1.0)
-        low, high = space.low.reshape(-1), space.high.reshape(-1)
-        if not (np.all(low == -1.0) and np.all(high == 1.0)):
-            a = low + (a + 1.0) * 0.5 * (high - low)
-        a = a.astype(space.dtype)
-        return list(a) if space.shape == (self.continuous,) else [row.reshape(space.shape) for row in a]
+        """The env's action for each of the agent's [E, action_dim] (env_actions)."""
+        return env_actions(actions, self.continuous, space)
 
     def outcome(self, obs, next_obs, rewards, terminated, infos, check=True):
         """(state_delta, vector_reward, success) of one step of every env, [E, d] and
@@ -249,6 +241,21 @@ class EnvDecl:
                 raise EnvError(f"{self.name}: {where}: aligned entry {self.aligned.start + j} {what} "
                                f"{float(v.reshape(-1, self.dim)[k, j])!r} in one step, beyond the declared "
                                f"max_change {self.max_change}")
+
+
+def env_actions(actions: np.ndarray, continuous: int, space) -> list:
+    """The env's action for each of the agent's actions [E, continuous + choices]: the
+    continuous values clipped to [-1, 1] and scaled to the Box; a choice's one-hot (the
+    entries after the continuous ones) as its index."""
+    actions = np.asarray(actions)
+    if actions.shape[1] > continuous:
+        return [int(i) for i in np.argmax(actions[:, continuous:], axis=1)]
+    a = np.clip(actions[:, :continuous], -1.0, 1.0)
+    low, high = space.low.reshape(-1), space.high.reshape(-1)
+    if not (np.all(low == -1.0) and np.all(high == 1.0)):
+        a = low + (a + 1.0) * 0.5 * (high - low)
+    a = a.astype(space.dtype)
+    return list(a) if space.shape == (continuous,) else [row.reshape(space.shape) for row in a]
 
 
 def _text(layout) -> str:

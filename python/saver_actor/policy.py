@@ -228,15 +228,7 @@ class Policy:
 
     def env_action(self, action: np.ndarray, space) -> Any:
         """`action` (one, from predict) as a Gymnasium env takes it: a Box's values
-        scaled from [-1, 1] to its bounds, a Discrete's index."""
-        import gymnasium as gym
+        scaled from [-1, 1] to its bounds, a Discrete's index (env.env_actions)."""
+        from .env import env_actions
 
-        a = np.asarray(action, dtype=np.float32)
-        c = self.layout.continuous
-        if isinstance(space, gym.spaces.Discrete):
-            return int(np.argmax(a[c:]))
-        if not isinstance(space, gym.spaces.Box):
-            raise ValueError(f"action space {space} is neither a Box nor a Discrete")
-        low, high = space.low.reshape(-1), space.high.reshape(-1)
-        scaled = low + (a[:c] + 1.0) * 0.5 * (high - low)
-        return scaled.astype(space.dtype).reshape(space.shape)
+        return env_actions(np.asarray(action, dtype=np.float32)[None], self.layout.continuous, space)[0]

@@ -372,6 +372,12 @@ impl EnvSpec {
         }
     }
 
+    /// The success rule a custom env declared (`None` for a preset, whose rule is its
+    /// kind's, and for a custom env without one): what the wire carries.
+    pub fn declared_success(&self) -> Option<SuccessRule> {
+        self.success
+    }
+
     /// What a PCPN models of this env: the spec without its success rule (a PCPN of
     /// a custom env serves it whatever its episodes count as success).
     pub fn dynamics(&self) -> Self {
