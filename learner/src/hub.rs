@@ -327,6 +327,13 @@ impl Hub {
             .collect()
     }
 
+    /// The session of connected actor `actor_id` (its rollout stream attached), if any.
+    pub fn session_of(&self, actor_id: u32) -> Option<u64> {
+        let s = self.lock();
+        let a = s.actors.get(&actor_id).filter(|a| a.attached)?;
+        Some(a.session)
+    }
+
     /// Registrations still waiting for their rollout stream.
     pub fn pending(&self) -> usize {
         let mut s = self.lock();

@@ -6,8 +6,9 @@ use crate::faults::small;
 use crate::hostile::{learner_with, one_actor_learner, open_stream, register, register_and_roll};
 use crate::temp_dir;
 use saver_actor::grpc::GrpcLink;
+use saver_actor::remote::{run_remote, RemoteActor};
 use saver_actor::{run_actor, Actor};
-use saver_core::link::{ActorSettings, Assignment, LearnerLink, Registration};
+use saver_core::link::{ActorSettings, Assignment, Registration};
 use saver_core::nets::Policy;
 use saver_core::rollout::{Batch, Rollout};
 use saver_core::CoreError;
@@ -358,34 +359,63 @@ fn a_run_killed_after_its_checkpoint_resumes_cleanly() {
 fn a_link_that_the_learner_forgets_registers_again() {
     // An actor whose registration the learner no longer knows (here: the learner
     // forgot it, as after a lease or a lock-out) loses its link, and `saver actor`'s
-    // loop registers again instead of sending refused rollouts for ever.
+    // loop (`run_remote`) registers again under a new session, instead of sending
+    // refused rollouts for ever or giving up, and the run trains on its rollouts.
     let (_config, dir, _rt, _learner, hub, url) = one_actor_learner("forgotten");
-    let mut link = GrpcLink::connect(&url).unwrap();
-    let reg = Registration {
+    let remote = RemoteActor {
+        learner: url,
         name: "a".into(),
-        session: 0,
-        n_envs: 1,
+        envs: 1,
+        give_up: Duration::from_secs(60),
+        shared_weights: false,
+        access: Default::default(),
     };
-    let a = link.register(&reg).unwrap();
-    hub.unregister(a.actor_id, a.session);
-    let w = link.weights(0).unwrap();
-    let mut policy = a.settings.policy.acting(w).unwrap();
-    let mut actor = Actor::new(&a, 1).unwrap();
-    let mut lost = None;
-    for _ in 0..50 {
-        match link.push(actor.collect(policy.as_mut())) {
-            Ok(()) => std::thread::sleep(Duration::from_millis(20)),
-            Err(e) => {
-                lost = Some(e);
-                break;
+    let stop = Arc::new(AtomicBool::new(false));
+    let actor = {
+        let stop = stop.clone();
+        std::thread::spawn(move || run_remote(&remote, &stop))
+    };
+    // The connected actor's (id, session), once one other than `not` is attached.
+    let connected = |not: Option<u64>| {
+        let deadline = std::time::Instant::now() + Duration::from_secs(60);
+        loop {
+            let found = hub
+                .actors()
+                .into_iter()
+                .find_map(|id| Some((id, hub.session_of(id)?)))
+                .filter(|&(_, s)| Some(s) != not);
+            if let Some(found) = found {
+                return found;
             }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "no actor (re)attached"
+            );
+            std::thread::sleep(Duration::from_millis(10));
         }
-    }
-    let e = lost.expect("the refusals end the link");
-    assert!(
-        matches!(e, saver_core::link::LinkError::Closed(_)),
-        "reconnect, not fail: {e}"
-    );
+    };
+    let trains = |min: u64| {
+        let v = hub
+            .wait_weights_for(min, Duration::from_secs(60))
+            .unwrap()
+            .version;
+        assert!(
+            v >= min,
+            "no update past version {} on this registration",
+            min - 1
+        );
+        v
+    };
+    let (id, first) = connected(None);
+    trains(2);
+    hub.unregister(id, first);
+    let after_forget = hub.latest().version;
+    let (_, second) = connected(Some(first));
+    assert_ne!(second, first);
+    trains(after_forget + 3);
+    stop.store(true, Ordering::SeqCst);
     hub.close("test over");
+    let summary = actor.join().unwrap().expect("the actor ends cleanly");
+    assert!(summary.rollouts >= 3, "{} rollouts", summary.rollouts);
     std::fs::remove_dir_all(dir).ok();
 }

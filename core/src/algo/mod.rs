@@ -4,6 +4,7 @@
 mod a2c;
 mod dense;
 pub(crate) mod fused;
+pub(crate) mod pcpn_tune;
 pub mod per_dim;
 mod qnet_grad;
 mod qrrl;

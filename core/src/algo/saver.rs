@@ -5,6 +5,7 @@
 //! L_mon = λ_mon · 2K · mean_{B·K·K·d} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
+use super::pcpn_tune::PcpnTuner;
 use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
 use super::saver_signal::{predicted_delta, rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY};
 use super::{
@@ -29,6 +30,17 @@ const STATS: &[&str] = &[
     "mu_abs_max",
     "log_std_mean",
     "grad_norm",
+];
+
+/// [`STATS`] and the PCPN's loss on the batch when it keeps learning.
+const STATS_TUNED: &[&str] = &[
+    "actor_loss",
+    "mon_loss",
+    "critic_loss",
+    "mu_abs_max",
+    "log_std_mean",
+    "grad_norm",
+    "pcpn_tune_loss",
 ];
 
 /// The SAVER learner state.
@@ -60,6 +72,8 @@ pub struct Saver {
     dev: Device,
     /// The last rank statistics (saver_signal.rs).
     ranks: Vec<(&'static str, Vec<f32>)>,
+    /// The PCPN's own training on the policy's steps (`saver.pcpn_tune_lr` > 0).
+    tuner: Option<PcpnTuner>,
 }
 
 /// How the agent's gradient through the PCPN is computed.
@@ -113,6 +127,18 @@ pub fn mu_raw_penalty(raw: &Tensor, w: f64, entries: &[usize]) -> Result<Tensor>
     Ok((over.sqr()?.sum_all()? * (w / raw.dim(0)? as f64))?)
 }
 
+/// The PCPN's inputs [o, μ, log σ] of `b` rows from row-major obs, μ and log σ.
+fn pcpn_rows(obs: &[f32], mu: &[f32], log_std: &[f32], b: usize) -> Vec<f32> {
+    let (o, m, s) = (obs.len() / b, mu.len() / b, log_std.len() / b);
+    let mut x = Vec::with_capacity(b * (o + m + s));
+    for r in 0..b {
+        x.extend_from_slice(&obs[r * o..(r + 1) * o]);
+        x.extend_from_slice(&mu[r * m..(r + 1) * m]);
+        x.extend_from_slice(&log_std[r * s..(r + 1) * s]);
+    }
+    x
+}
+
 /// SAVER's registration ([`super::entry`]).
 pub(crate) const ENTRY: super::Entry = super::Entry {
     build: build_saver,
@@ -135,6 +161,9 @@ impl Saver {
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
         let opt = super::run_optimizer(vars, config)?;
+        let tuner = (config.saver.pcpn_tune_lr > 0.0)
+            .then(|| PcpnTuner::new(&pcpn, config.optimizer, config.saver.pcpn_tune_lr))
+            .transpose()?;
         Ok(Self {
             agent,
             critic,
@@ -149,6 +178,7 @@ impl Saver {
             mu_bound: config.head.mu_bound,
             dev: dev.clone(),
             ranks: Vec::new(),
+            tuner,
         })
     }
 
@@ -165,7 +195,11 @@ impl Saver {
 
 impl Algorithm for Saver {
     fn stat_names(&self) -> &'static [&'static str] {
-        STATS
+        if self.tuner.is_some() {
+            STATS_TUNED
+        } else {
+            STATS
+        }
     }
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
@@ -254,8 +288,25 @@ impl Algorithm for Saver {
         let actor = check_finite("actor_loss", actor)?;
         let mon = check_finite("mon_loss", mon)?;
         let critic = check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?;
+        // The PCPN's step on this batch, computed before anything changes.
+        let tune = match &self.tuner {
+            Some(t) => {
+                let x = pcpn_rows(&batch.obs, &mu_host, &log_std_host, b);
+                let taus = uniform01(&mut self.rng, d * b * k);
+                Some(t.grads(x, &batch.state_delta, b, &taus)?)
+            }
+            None => None,
+        };
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
+        let tune_loss = match (&mut self.tuner, tune) {
+            (Some(t), Some((l, g))) => {
+                t.apply(&g)?;
+                self.pcpn = self.pcpn.refreshed(t.frozen()?)?;
+                Some(l)
+            }
+            _ => None,
+        };
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
         let signal = SignalBatch {
             dmu: dmu_host.as_deref(),
@@ -278,17 +329,16 @@ impl Algorithm for Saver {
         }
         per_dim.extend(self.ranks.iter().cloned());
         per_dim.extend(snr_stats(&self.layout, &signal));
-        Ok(UpdateStats {
-            values: vec![
-                ("actor_loss", actor),
-                ("mon_loss", mon),
-                ("critic_loss", critic),
-                ("mu_abs_max", mu_abs_max),
-                ("log_std_mean", log_std_mean),
-                ("grad_norm", grad_norm),
-            ],
-            per_dim,
-        })
+        let mut values = vec![
+            ("actor_loss", actor),
+            ("mon_loss", mon),
+            ("critic_loss", critic),
+            ("mu_abs_max", mu_abs_max),
+            ("log_std_mean", log_std_mean),
+            ("grad_norm", grad_norm),
+        ];
+        values.extend(tune_loss.map(|l| ("pcpn_tune_loss", l)));
+        Ok(UpdateStats { values, per_dim })
     }
 
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
@@ -301,6 +351,9 @@ impl Algorithm for Saver {
 
     fn set_threads(&mut self, n: usize) {
         self.pcpn.set_threads(n);
+        if let Some(t) = &mut self.tuner {
+            t.set_threads(n);
+        }
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {
@@ -310,6 +363,9 @@ impl Algorithm for Saver {
         state
             .numbers
             .insert(super::RNG_WORD_POS.to_string(), self.rng.get_word_pos());
+        if let Some(t) = &self.tuner {
+            t.save(&mut state)?;
+        }
         Ok(state)
     }
 
@@ -323,6 +379,10 @@ impl Algorithm for Saver {
         super::restore_optimizer(&mut self.opt, get, numbers)?;
         self.rng
             .set_word_pos(super::saved_number(numbers, super::RNG_WORD_POS)?);
+        if let Some(t) = &mut self.tuner {
+            t.restore(get, numbers)?;
+            self.pcpn = self.pcpn.refreshed(t.frozen()?)?;
+        }
         Ok(())
     }
 }

@@ -79,6 +79,13 @@ impl PcpnGrad {
         self.threads = n;
     }
 
+    /// The same on `pcpn`'s weights (its thread count kept).
+    pub fn refreshed(&self, pcpn: Pcpn) -> Result<Self> {
+        let mut g = Self::new(pcpn)?;
+        g.threads = self.threads;
+        Ok(g)
+    }
+
     /// The frozen PCPN.
     pub fn pcpn(&self) -> &Pcpn {
         &self.pcpn

@@ -483,5 +483,6 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         qrrl_spread: 0.0,
         qrrl_vector: false,
         target: crate::config::DeltaTarget::Observed,
+        pcpn_tune_lr: 0.0,
     }
 }

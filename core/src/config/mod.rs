@@ -68,6 +68,11 @@ pub struct SaverConfig {
     /// PCPN's prediction for the action taken (docs/ALGORITHM.md §7.1).
     #[serde(default)]
     pub target: DeltaTarget,
+    /// Learning rate of the PCPN's own training on the policy's steps during the run
+    /// (one pretraining step per update on the batch's [o, μ, log σ] → Δp;
+    /// docs/ALGORITHM.md §7.1). 0: the PCPN stays frozen (the paper).
+    #[serde(default)]
+    pub pcpn_tune_lr: f64,
 }
 
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
@@ -207,6 +212,7 @@ impl RunConfig {
                 qrrl_spread: QRRL_SPREAD,
                 qrrl_vector: false,
                 target: DeltaTarget::Observed,
+                pcpn_tune_lr: 0.0,
             },
             pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
             pcpn_sha256: None,
@@ -341,6 +347,7 @@ impl RunConfig {
             ("saver.lambda_critic", s.lambda_critic),
             ("saver.mu_raw_penalty", s.mu_raw_penalty),
             ("saver.qrrl_spread", s.qrrl_spread),
+            ("saver.pcpn_tune_lr", s.pcpn_tune_lr),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("{v} must be finite and >= 0"));

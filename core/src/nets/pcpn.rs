@@ -128,6 +128,20 @@ impl Pcpn {
         Self::from_ordered(t, dim, prefix)
     }
 
+    /// A trainable copy of this network: its weights as new variables in `params` (the
+    /// same names), for a learner that keeps fitting a pretrained PCPN.
+    pub fn trainable(&self, params: &mut ParamSet) -> Result<Self> {
+        let mut t = Vec::new();
+        for (name, x) in self.tensors()? {
+            let values = x
+                .to_dtype(candle_core::DType::F32)?
+                .flatten_all()?
+                .to_vec1::<f32>()?;
+            t.push(params.var(&name, values, x.dims(), x.device())?);
+        }
+        Self::from_ordered(t, self.dim, &self.prefix)
+    }
+
     /// A frozen PCPN from named tensors (checked against the layout's shapes).
     pub fn frozen(layout: &EnvLayout, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<Self> {
         let (i, d) = (layout.pcpn_input_dim(), layout.aligned_dim);

@@ -146,6 +146,8 @@ pub struct SaverSettings {
     #[arg(long = "saver-target", value_enum, help = help("SAVER: the actor loss's target: the observed position change (the paper) or the PCPN's prediction for the action taken (for envs where one step's change is mostly velocity)", "saver.target"))]
     #[serde(rename = "target")]
     pub saver_target: Option<DeltaTarget>,
+    #[arg(long, allow_hyphen_values = true, help = help("SAVER: learning rate of the PCPN's own training on the policy's steps during the run (one step per update; 0: frozen, the paper)", "saver.pcpn_tune_lr"))]
+    pub pcpn_tune_lr: Option<f64>,
     #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
     pub qrrl_spread: Option<f64>,
     #[arg(long, help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "saver.qrrl_vector"))]
