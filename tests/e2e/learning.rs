@@ -90,8 +90,10 @@ fn column(metrics: &std::path::Path, name: &str) -> Vec<f64> {
 /// 100 episodes, done by 29 k steps, average 269 (it learns while they run), 23.1 at
 /// 100 k, the last 100 12.5; seed 1: 243 -> 12.1; seed 2: 222 -> 11.9. The
 /// thresholds 150 and 40 leave 1.8x and 3x margin. Max |μ| over the run 1.0 (to f32
-/// precision): the tanh head keeps μ in the PCPN's domain. (Adam 3e-4 with one std per dimension, the default before:
-/// 20.3 / 31.5 / 14.1 at 150 k.)
+/// precision): the policy uses the PCPN's whole domain [-1, 1] and no more, which the
+/// default's bounded head (μ = tanh) is for; with the head unbounded (`mu_bound` off,
+/// the rest of the default kept) max |μ| reached 8.8 and this test fails. (Adam 3e-4
+/// with one std per dimension, the default before: 20.3 / 31.5 / 14.1 at 150 k.)
 #[test]
 fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
     let dir = temp_dir("saver-learn");
@@ -111,7 +113,10 @@ fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
     assert_learned(&o, "SAVER", 150.0);
     let mu = column(&o.metrics, "mu_abs_max");
     let worst = mu.iter().cloned().fold(0.0, f64::max);
-    assert!(worst <= 1.0, "μ left [-1, 1]: max |μ| {worst}");
+    assert!(
+        (0.9..=1.0).contains(&worst),
+        "max |μ| {worst}: beyond [-1, 1], or the policy never pushed to its bound"
+    );
     std::fs::remove_dir_all(dir).ok();
 }
 

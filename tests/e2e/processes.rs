@@ -407,6 +407,13 @@ fn rss_kib(pid: u32) -> u64 {
     line.split_whitespace().nth(1).unwrap().parse().unwrap()
 }
 
+/// 64 actor processes against one learner: after a warm-up of 50 updates and 300 more
+/// (the allocator's arenas, the checkpoint buffers and 64 streams reach their size), the
+/// learner's resident memory grows by at most 2 MiB over the next 600 updates
+/// (38,400 rollouts). Measured: 29,848 → 30,188 → 30,340 KiB at versions 54, 356 and
+/// 958 (+152 KiB in the checked window). With a leak planted in `Hub::submit` (each
+/// rollout's observations forgotten) the same window grew 3,852 KiB and fails;
+/// the bound before (+50 % + 32 MiB, ~47 MiB) passed it.
 #[test]
 fn sixty_four_actor_soak_keeps_the_learners_memory_flat() {
     let dir = temp_dir("soak");
@@ -435,19 +442,23 @@ fn sixty_four_actor_soak_keeps_the_learners_memory_flat() {
         "64 actors training",
         |v, a| v >= 50 && a == 64,
     );
-    let (v0, rss0) = (version(&url), rss_kib(learner.0.id()));
-    wait_until(
-        &url,
-        std::time::Duration::from_secs(300),
-        "500 more updates",
-        |v, _| v >= v0 + 500,
-    );
-    let (v1, rss1) = (version(&url), rss_kib(learner.0.id()));
-    eprintln!("64-actor soak: learner RSS {rss0} KiB at version {v0}, {rss1} KiB at version {v1}");
+    let mut at = vec![(version(&url), rss_kib(learner.0.id()))];
+    for more in [300, 600] {
+        let v0 = at.last().unwrap().0;
+        wait_until(
+            &url,
+            std::time::Duration::from_secs(600),
+            "more updates",
+            |v, _| v >= v0 + more,
+        );
+        at.push((version(&url), rss_kib(learner.0.id())));
+    }
+    eprintln!("64-actor soak: learner (version, RSS KiB) {at:?}");
+    let ((v1, rss1), (v2, rss2)) = (at[1], at[2]);
     assert!(
-        rss1 < rss0 + rss0 / 2 + 32 * 1024,
-        "the learner grew from {rss0} KiB to {rss1} KiB over {} updates",
-        v1 - v0
+        rss2 <= rss1 + 2 * 1024,
+        "the learner grew from {rss1} KiB to {rss2} KiB over {} updates",
+        v2 - v1
     );
     std::fs::remove_dir_all(dir).ok();
 }
