@@ -308,8 +308,8 @@ def user_env(module, code, max_steps):
 
 
 def test_the_readme_example_trains():
-    """The README's "Bring your own environment" example, as a new user runs it."""
-    text = open(os.path.join(ROOT, "README.md")).read()
+    """The guide's (docs/GUIDE.md) "Bring your own environment" example, as a new user runs it."""
+    text = open(os.path.join(ROOT, "docs", "GUIDE.md")).read()
     section = text[text.index("### Bring your own environment"):]
     code = section[section.index("```python") + len("```python"):]
     d, cfg, _ = user_env("slider", code[:code.index("```")], 200)
@@ -324,7 +324,7 @@ def test_the_readme_example_trains():
         with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
             st = pb_grpc.LearnerStub(ch).Status(pb.StatusRequest(), timeout=10)
         assert st.finished and st.env == "slider-d2" and st.steps >= 20000, st
-        print(f"  the README's slider: {st.steps} steps, mean episode length {st.mean_ep_len_100:.1f}")
+        print(f"  the guide's slider: {st.steps} steps, mean episode length {st.mean_ep_len_100:.1f}")
     finally:
         srv.stop()
 
