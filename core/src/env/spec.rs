@@ -432,7 +432,7 @@ impl EnvSpec {
             None => Err(CoreError::Config(format!(
                 "{self} is a custom env, which this build cannot step: serve the run with \
                  `saver learner --config FILE` and let the env's own actors act for it (Python: \
-                 `saver-actor act`, README \"Bring your own environment\")"
+                 `saver-actor act`, docs/GUIDE.md \"Bring your own environment\")"
             ))),
         }
     }

@@ -124,6 +124,10 @@ mod tests {
             "Wall [default: 0.0] (saver on a custom env: 0.1)"
         );
         assert_eq!(
+            help("Tune", "saver.pcpn_tune_lr"),
+            "Tune [default: 0.0] (saver on a custom env: 0.001)"
+        );
+        assert_eq!(
             help("Bound", "head.mu_bound"),
             "Bound [default: a2c inf, saver 1.0, --faithful saver inf]"
         );
