@@ -121,8 +121,7 @@ impl Algorithm for A2c {
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {
-        let tensors = self.agent.params().tensors()?;
-        Ok(super::AlgoState::with_optimizer(tensors, &self.opt))
+        super::nets_state(&[self.agent.params()], &self.opt, None)
     }
 
     fn restore_state(
@@ -130,7 +129,6 @@ impl Algorithm for A2c {
         get: &dyn Fn(&str) -> Option<Tensor>,
         numbers: &std::collections::BTreeMap<String, u128>,
     ) -> Result<()> {
-        self.agent.params().load(get)?;
-        super::restore_optimizer(&mut self.opt, get, numbers)
+        super::restore_nets(&[self.agent.params()], &mut self.opt, None, get, numbers)
     }
 }

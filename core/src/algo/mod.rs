@@ -106,6 +106,44 @@ impl AlgoState {
     }
 }
 
+/// The checkpointed state of networks `nets` trained by `opt`, and the position of the
+/// random stream `rng` where the update draws from one.
+pub(crate) fn nets_state(
+    nets: &[&crate::nets::ParamSet],
+    opt: &Optimizer,
+    rng: Option<&crate::rng::SaverRng>,
+) -> Result<AlgoState> {
+    let mut tensors = Vec::new();
+    for n in nets {
+        tensors.extend(n.tensors()?);
+    }
+    let mut state = AlgoState::with_optimizer(tensors, opt);
+    if let Some(rng) = rng {
+        state
+            .numbers
+            .insert(RNG_WORD_POS.to_string(), rng.get_word_pos());
+    }
+    Ok(state)
+}
+
+/// Restores what [`nets_state`] saved.
+pub(crate) fn restore_nets(
+    nets: &[&crate::nets::ParamSet],
+    opt: &mut Optimizer,
+    rng: Option<&mut crate::rng::SaverRng>,
+    get: &dyn Fn(&str) -> Option<Tensor>,
+    numbers: &BTreeMap<String, u128>,
+) -> Result<()> {
+    for n in nets {
+        n.load(get)?;
+    }
+    restore_optimizer(opt, get, numbers)?;
+    if let Some(rng) = rng {
+        rng.set_word_pos(saved_number(numbers, RNG_WORD_POS)?);
+    }
+    Ok(())
+}
+
 /// Restores `opt` (slots and step count) from a saved state.
 pub(crate) fn restore_optimizer(
     opt: &mut Optimizer,

@@ -18,8 +18,8 @@
 
 use super::qnet_grad::quantile_net_grads;
 use super::saver_grad::weighted_quantile_losses;
+use super::UpdateStats;
 use super::{batch_returns, check_finite, tau_tensors, update_rows, Algorithm, GradPath};
-use super::{UpdateStats, RNG_WORD_POS};
 use crate::config::{RunConfig, SaverConfig};
 use crate::env::EnvLayout;
 use crate::nets::{base_quantiles, Critic, ParamSet, Pcpn, QuantileFamily, QUANTILE_PREFIX};
@@ -243,13 +243,8 @@ impl Algorithm for Qrrl {
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {
-        let mut tensors = self.net_params.tensors()?;
-        tensors.extend(self.critic.params().tensors()?);
-        let mut state = super::AlgoState::with_optimizer(tensors, &self.opt);
-        state
-            .numbers
-            .insert(RNG_WORD_POS.to_string(), self.rng.get_word_pos());
-        Ok(state)
+        let nets = [&self.net_params, self.critic.params()];
+        super::nets_state(&nets, &self.opt, Some(&self.rng))
     }
 
     fn restore_state(
@@ -257,12 +252,8 @@ impl Algorithm for Qrrl {
         get: &dyn Fn(&str) -> Option<Tensor>,
         numbers: &std::collections::BTreeMap<String, u128>,
     ) -> Result<()> {
-        self.net_params.load(get)?;
-        self.critic.params().load(get)?;
-        super::restore_optimizer(&mut self.opt, get, numbers)?;
-        self.rng
-            .set_word_pos(super::saved_number(numbers, RNG_WORD_POS)?);
-        Ok(())
+        let nets = [&self.net_params, self.critic.params()];
+        super::restore_nets(&nets, &mut self.opt, Some(&mut self.rng), get, numbers)
     }
 }
 

@@ -357,12 +357,8 @@ impl Algorithm for Saver {
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {
-        let mut tensors = self.agent.params().tensors()?;
-        tensors.extend(self.critic.params().tensors()?);
-        let mut state = super::AlgoState::with_optimizer(tensors, &self.opt);
-        state
-            .numbers
-            .insert(super::RNG_WORD_POS.to_string(), self.rng.get_word_pos());
+        let nets = [self.agent.params(), self.critic.params()];
+        let mut state = super::nets_state(&nets, &self.opt, Some(&self.rng))?;
         if let Some(t) = &self.tuner {
             t.save(&mut state)?;
         }
@@ -374,11 +370,8 @@ impl Algorithm for Saver {
         get: &dyn Fn(&str) -> Option<Tensor>,
         numbers: &std::collections::BTreeMap<String, u128>,
     ) -> Result<()> {
-        self.agent.params().load(get)?;
-        self.critic.params().load(get)?;
-        super::restore_optimizer(&mut self.opt, get, numbers)?;
-        self.rng
-            .set_word_pos(super::saved_number(numbers, super::RNG_WORD_POS)?);
+        let nets = [self.agent.params(), self.critic.params()];
+        super::restore_nets(&nets, &mut self.opt, Some(&mut self.rng), get, numbers)?;
         if let Some(t) = &mut self.tuner {
             t.restore(get, numbers)?;
             self.pcpn = self.pcpn.refreshed(t.frozen()?)?;
