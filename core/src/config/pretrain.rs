@@ -31,20 +31,14 @@ pub struct PretrainConfig {
 /// Held-out batches of the pretraining report (fresh samples, fixed τ stream).
 pub const PRETRAIN_EVAL_BATCHES: usize = 16;
 
-/// The paper's learning rate for an env and algorithm (docs/ALGORITHM.md §12). The
-/// paper does not run standalone QRRL; its "paper" settings are A2C's (the same
-/// actor-critic loop, optimiser and rate).
+/// The paper's learning rate for an env and algorithm (docs/ALGORITHM.md §12; the
+/// preset's row, [`crate::env::PRESETS`]). The paper does not run standalone QRRL; its
+/// "paper" settings are A2C's (the same actor-critic loop, optimiser and rate).
 pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
-    match (kind, algo) {
-        (kind, Algo::Qrrl) => paper_lr(kind, Algo::A2c),
-        // Not in the paper: angle's rates.
-        (EnvKind::Bandit | EnvKind::Point, algo) => paper_lr(EnvKind::Angle, algo),
-        (EnvKind::Angle, Algo::Saver) => 0.01,
-        (EnvKind::Angle, Algo::A2c) => 0.0003,
-        (EnvKind::Select, Algo::Saver) => 0.01,
-        (EnvKind::Select, Algo::A2c) => 0.0001,
-        (EnvKind::Arm, Algo::Saver) => 0.003,
-        (EnvKind::Arm, Algo::A2c) => 0.0003,
+    let p = kind.preset();
+    match algo {
+        Algo::Saver => p.paper_saver_lr,
+        Algo::A2c | Algo::Qrrl => p.paper_a2c_lr,
     }
 }
 
@@ -54,12 +48,9 @@ pub fn preset_or_angle(env: &EnvSpec) -> EnvKind {
     env.kind().unwrap_or(EnvKind::Angle)
 }
 
-/// The paper's number of pretraining batches for an env.
+/// The paper's number of pretraining batches for an env (the preset's row).
 pub fn paper_pretrain_batches(kind: EnvKind) -> u64 {
-    match kind {
-        EnvKind::Angle | EnvKind::Point => 100_000,
-        EnvKind::Select | EnvKind::Arm | EnvKind::Bandit => 10_000,
-    }
+    kind.preset().paper_pretrain_batches
 }
 
 /// "5000 batches x 128, K 32, rmsprop lr 0.001, seed 0, reset samples": what a PCPN's

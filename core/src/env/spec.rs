@@ -3,8 +3,9 @@
 //! angle, select and arm are presets of it ([`EnvKind`]); a user's env is a spec of its
 //! own ([`EnvSpec::custom`]) whose actors bring the env itself.
 
+use super::preset::PRESETS;
 use super::slack;
-use super::{Angle, Arm, Env, Select, SuccessRule, SUCCESS_RADIUS};
+use super::{Env, SuccessRule, SUCCESS_RADIUS};
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -31,98 +32,37 @@ pub enum EnvKind {
 }
 
 impl EnvKind {
-    /// Parses `angle`, `select`, `arm`, `bandit` or `point`.
+    /// Parses a preset's name ([`PRESETS`]).
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            let names: Vec<_> = PRESETS.iter().map(|p| p.name).collect();
             CoreError::Config(format!(
-                "env: unknown environment {:?} (expected angle, select, arm, bandit or point)",
-                crate::clip_text(s)
+                "env: unknown environment {:?} (expected one of {})",
+                crate::clip_text(s),
+                names.join(", ")
             ))
         })
     }
 
     /// The lower-case name.
     pub fn name(self) -> &'static str {
-        match self {
-            Self::Angle => "angle",
-            Self::Select => "select",
-            Self::Arm => "arm",
-            Self::Bandit => "bandit",
-            Self::Point => "point",
-        }
+        self.preset().name
     }
 
     /// The episode length this preset always has, if it has one (the bandit: 1 step);
     /// a run of it must use it as its step limit.
     pub fn fixed_episode_steps(self) -> Option<u32> {
-        match self {
-            Self::Bandit => Some(1),
-            _ => None,
-        }
+        self.preset().fixed_episode_steps
     }
 
     /// The layout of this preset at dimension `d`.
     pub fn layout(self, d: usize) -> EnvLayout {
-        match self {
-            Self::Angle | Self::Point => EnvLayout {
-                obs_dim: d,
-                continuous: d,
-                choices: 0,
-                aligned_start: 0,
-                aligned_dim: d,
-            },
-            Self::Select => EnvLayout {
-                obs_dim: d,
-                continuous: 1,
-                choices: d,
-                aligned_start: 0,
-                aligned_dim: d,
-            },
-            Self::Arm => EnvLayout {
-                obs_dim: 6,
-                continuous: 2,
-                choices: 0,
-                aligned_start: 4,
-                aligned_dim: 2,
-            },
-            Self::Bandit => EnvLayout {
-                obs_dim: 1,
-                continuous: 1,
-                choices: 0,
-                aligned_start: 0,
-                aligned_dim: 1,
-            },
-        }
+        (self.preset().layout)(d)
     }
 
     /// What this preset's observations and steps can hold at dimension `d`.
     pub fn bounds(self, d: usize) -> EnvBounds {
-        match self {
-            // Positions stay in the cube; a step moves each coordinate by at most
-            // 0.1 (angle: 0.1·|sin φ|, 0.1·|cos φ|; select: 0.1 on one coordinate).
-            Self::Angle | Self::Select | Self::Point => EnvBounds {
-                obs_low: vec![-1.0; d],
-                obs_high: vec![1.0; d],
-                max_change: 0.1,
-            },
-            // obs = [goal in [-1, 1]^2, angles in [-π, π), hand in [-2, 2]^2]. Each
-            // joint turns by at most 0.02π per step; the hand moves by at most its
-            // lever arm times that: 2·0.02π (joint 1) + 1·0.02π (joint 2) < 0.19.
-            Self::Arm => {
-                let pi = std::f32::consts::PI;
-                EnvBounds {
-                    obs_low: vec![-1.0, -1.0, -pi, -pi, -2.0, -2.0],
-                    obs_high: vec![1.0, 1.0, pi, pi, 2.0, 2.0],
-                    max_change: 0.19,
-                }
-            }
-            // p in [0, 1]; the one step moves it by R(a) <= 1.
-            Self::Bandit => EnvBounds {
-                obs_low: vec![0.0],
-                obs_high: vec![1.0],
-                max_change: 1.0,
-            },
-        }
+        (self.preset().bounds)(d)
     }
 }
 
@@ -221,31 +161,21 @@ impl fmt::Display for EnvSpec {
 impl EnvSpec {
     /// The preset `kind` at dimension `dim` (validated for the kind).
     pub fn new(kind: EnvKind, dim: usize) -> Result<Self> {
-        match kind {
-            EnvKind::Angle if dim == 0 || !dim.is_multiple_of(2) => Err(CoreError::Config(
-                format!("dim: angle needs an even dimension >= 2, got {dim}"),
-            )),
-            EnvKind::Select | EnvKind::Point if dim == 0 => Err(CoreError::Config(format!(
-                "dim: {} needs a dimension >= 1, got 0",
-                kind.name()
-            ))),
-            EnvKind::Arm if dim != 2 => Err(CoreError::Config(format!(
-                "dim: the arm's hand moves in 2 dimensions, got dim {dim}"
-            ))),
-            EnvKind::Bandit if dim != 1 => Err(CoreError::Config(format!(
-                "dim: the bandit has one action and one coordinate, got dim {dim}"
-            ))),
-            _ if dim > MAX_ENV_DIM => Err(CoreError::Config(format!(
-                "dim: {dim} is larger than the supported {MAX_ENV_DIM}"
-            ))),
-            _ => Ok(Self {
-                preset: Some(kind),
-                name: kind.name().to_string(),
-                layout: kind.layout(dim),
-                bounds: kind.bounds(dim),
-                success: None,
-            }),
+        if let Some(why) = (kind.preset().bad_dim)(dim) {
+            return Err(CoreError::Config(format!("dim: {why}")));
         }
+        if dim > MAX_ENV_DIM {
+            return Err(CoreError::Config(format!(
+                "dim: {dim} is larger than the supported {MAX_ENV_DIM}"
+            )));
+        }
+        Ok(Self {
+            preset: Some(kind),
+            name: kind.name().to_string(),
+            layout: kind.layout(dim),
+            bounds: kind.bounds(dim),
+            success: None,
+        })
     }
 
     /// The smallest custom environment: obs [x, y] in [−1, 1]², one continuous action,
@@ -366,7 +296,7 @@ impl EnvSpec {
         match self.preset {
             Some(kind) => Some(SuccessRule {
                 radius: SUCCESS_RADIUS,
-                goal_start: (kind == EnvKind::Arm).then_some(0),
+                goal_start: kind.preset().goal_start,
             }),
             None => self.success,
         }
@@ -396,7 +326,7 @@ impl EnvSpec {
     /// and the bandit), so that coordinate j's advantage can weigh action dim j (QRRL's
     /// vector variant). Custom envs do not declare it yet.
     pub fn actions_aligned(&self) -> bool {
-        matches!(self.preset, Some(EnvKind::Point | EnvKind::Bandit))
+        self.preset.is_some_and(|k| k.preset().actions_aligned)
     }
 
     /// The name.
@@ -424,11 +354,7 @@ impl EnvSpec {
     /// their own.
     pub fn make(&self, max_steps: u32) -> Result<Box<dyn Env>> {
         match self.preset {
-            Some(EnvKind::Angle) => Ok(Box::new(Angle::new(self.dim(), max_steps))),
-            Some(EnvKind::Select) => Ok(Box::new(Select::new(self.dim(), max_steps))),
-            Some(EnvKind::Arm) => Ok(Box::new(Arm::new(max_steps))),
-            Some(EnvKind::Bandit) => Ok(Box::new(super::Bandit::new(max_steps))),
-            Some(EnvKind::Point) => Ok(Box::new(super::Point::new(self.dim(), max_steps))),
+            Some(kind) => Ok((kind.preset().make)(self.dim(), max_steps)),
             None => Err(CoreError::Config(format!(
                 "{self} is a custom env, which this build cannot step: serve the run with \
                  `saver learner --config FILE` and let the env's own actors act for it (Python: \

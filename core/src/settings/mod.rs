@@ -21,8 +21,6 @@ pub use help::help;
 
 /// Env of a run with no `--env`.
 pub const DEFAULT_ENV: EnvKind = EnvKind::Angle;
-/// Dimension of angle and select with no `--dim` (the arm's is 2).
-pub const DEFAULT_DIM: usize = 4;
 /// Algorithm with no `--algo`: A2C trains the default run in ~15 s; SAVER needs a
 /// PCPN first.
 pub const DEFAULT_ALGO: Algo = Algo::A2c;
@@ -82,11 +80,7 @@ impl EnvSettings {
             return Ok(spec);
         }
         let kind = self.kind.unwrap_or(DEFAULT_ENV);
-        let dim = self.dim.unwrap_or(match kind {
-            EnvKind::Arm => 2,
-            EnvKind::Bandit => 1,
-            _ => DEFAULT_DIM,
-        });
+        let dim = self.dim.unwrap_or(kind.preset().default_dim);
         EnvSpec::new(kind, dim)
     }
 }

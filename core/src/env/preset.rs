@@ -1,0 +1,193 @@
+//! The built-in environments as one table: everything the code knows of a preset —
+//! its dimensions, layout, bounds, maker, success rule and the paper's settings for
+//! it — is one [`Preset`] row of [`PRESETS`]. A new preset is its env file, a variant
+//! of [`EnvKind`] and one row here (docs/ARCHITECTURE.md shows the diff).
+
+use super::{Angle, Arm, Bandit, Env, EnvBounds, EnvKind, EnvLayout, Point, Select};
+
+/// One built-in environment.
+pub struct Preset {
+    /// Its kind (the row's index in [`PRESETS`] is the kind's).
+    pub kind: EnvKind,
+    /// The lower-case name (`--env NAME`, file names, the wire).
+    pub name: &'static str,
+    /// Why dimension d is invalid for it, if it is.
+    pub bad_dim: fn(usize) -> Option<String>,
+    /// Its dimension when a run names none.
+    pub default_dim: usize,
+    /// Its layout at dimension d.
+    pub layout: fn(usize) -> EnvLayout,
+    /// What its observations and steps can hold at dimension d.
+    pub bounds: fn(usize) -> EnvBounds,
+    /// A fresh instance at dimension d with a step limit.
+    pub make: fn(usize, u32) -> Box<dyn Env>,
+    /// The episode length it always has, if any (a run must use it as its limit).
+    pub fixed_episode_steps: Option<u32>,
+    /// Where its goal is: `None` the origin, `Some(i)` observation entries i..i+d.
+    pub goal_start: Option<usize>,
+    /// Whether continuous action dim j moves coordinate j alone (QRRL's vector variant).
+    pub actions_aligned: bool,
+    /// The paper's SAVER learning rate for it (a preset the paper did not run: angle's).
+    pub paper_saver_lr: f64,
+    /// The paper's A2C learning rate for it.
+    pub paper_a2c_lr: f64,
+    /// The paper's PCPN pretraining batches for it.
+    pub paper_pretrain_batches: u64,
+}
+
+/// A d-cube's layout: the observation is p, `continuous` action entries, `choices`.
+const fn cube(d: usize, continuous: usize, choices: usize) -> EnvLayout {
+    EnvLayout {
+        obs_dim: d,
+        continuous,
+        choices,
+        aligned_start: 0,
+        aligned_dim: d,
+    }
+}
+
+/// Positions stay in the cube; a step moves each coordinate by at most 0.1 (angle:
+/// 0.1·|sin φ|, 0.1·|cos φ|; select: 0.1 on one coordinate; point: 0.1 on each).
+fn cube_bounds(d: usize) -> EnvBounds {
+    EnvBounds {
+        obs_low: vec![-1.0; d],
+        obs_high: vec![1.0; d],
+        max_change: 0.1,
+    }
+}
+
+/// The presets, in [`EnvKind`]'s order.
+pub const PRESETS: [Preset; 5] = [
+    Preset {
+        kind: EnvKind::Angle,
+        name: "angle",
+        bad_dim: |d| {
+            (d == 0 || !d.is_multiple_of(2))
+                .then(|| format!("angle needs an even dimension >= 2, got {d}"))
+        },
+        default_dim: 4,
+        layout: |d| cube(d, d, 0),
+        bounds: cube_bounds,
+        make: |d, max_steps| Box::new(Angle::new(d, max_steps)),
+        fixed_episode_steps: None,
+        goal_start: None,
+        actions_aligned: false,
+        paper_saver_lr: 0.01,
+        paper_a2c_lr: 0.0003,
+        paper_pretrain_batches: 100_000,
+    },
+    Preset {
+        kind: EnvKind::Select,
+        name: "select",
+        bad_dim: |d| (d == 0).then(|| "select needs a dimension >= 1, got 0".into()),
+        default_dim: 4,
+        layout: |d| cube(d, 1, d),
+        bounds: cube_bounds,
+        make: |d, max_steps| Box::new(Select::new(d, max_steps)),
+        fixed_episode_steps: None,
+        goal_start: None,
+        actions_aligned: false,
+        paper_saver_lr: 0.01,
+        paper_a2c_lr: 0.0001,
+        paper_pretrain_batches: 10_000,
+    },
+    Preset {
+        kind: EnvKind::Arm,
+        name: "arm",
+        bad_dim: |d| (d != 2).then(|| format!("the arm's hand moves in 2 dimensions, got dim {d}")),
+        default_dim: 2,
+        // obs = [goal (2), joint angles (2), hand (2)]; the hand is the aligned part.
+        layout: |_| EnvLayout {
+            obs_dim: 6,
+            continuous: 2,
+            choices: 0,
+            aligned_start: 4,
+            aligned_dim: 2,
+        },
+        // goal in [-1, 1]^2, angles in [-π, π), hand in [-2, 2]^2. Each joint turns by
+        // at most 0.02π per step; the hand moves by at most its lever arm times that:
+        // 2·0.02π (joint 1) + 1·0.02π (joint 2) < 0.19.
+        bounds: |_| {
+            let pi = std::f32::consts::PI;
+            EnvBounds {
+                obs_low: vec![-1.0, -1.0, -pi, -pi, -2.0, -2.0],
+                obs_high: vec![1.0, 1.0, pi, pi, 2.0, 2.0],
+                max_change: 0.19,
+            }
+        },
+        make: |_, max_steps| Box::new(Arm::new(max_steps)),
+        fixed_episode_steps: None,
+        goal_start: Some(0),
+        actions_aligned: false,
+        paper_saver_lr: 0.003,
+        paper_a2c_lr: 0.0003,
+        paper_pretrain_batches: 10_000,
+    },
+    Preset {
+        kind: EnvKind::Bandit,
+        name: "bandit",
+        bad_dim: |d| {
+            (d != 1).then(|| format!("the bandit has one action and one coordinate, got dim {d}"))
+        },
+        default_dim: 1,
+        layout: |_| cube(1, 1, 0),
+        // p in [0, 1]; the one step moves it by R(a) <= 1.
+        bounds: |_| EnvBounds {
+            obs_low: vec![0.0],
+            obs_high: vec![1.0],
+            max_change: 1.0,
+        },
+        make: |_, max_steps| Box::new(Bandit::new(max_steps)),
+        fixed_episode_steps: Some(1),
+        goal_start: None,
+        actions_aligned: true,
+        // Not in the paper: angle's.
+        paper_saver_lr: 0.01,
+        paper_a2c_lr: 0.0003,
+        paper_pretrain_batches: 10_000,
+    },
+    Preset {
+        kind: EnvKind::Point,
+        name: "point",
+        bad_dim: |d| (d == 0).then(|| "point needs a dimension >= 1, got 0".into()),
+        default_dim: 4,
+        layout: |d| cube(d, d, 0),
+        bounds: cube_bounds,
+        make: |d, max_steps| Box::new(Point::new(d, max_steps)),
+        fixed_episode_steps: None,
+        goal_start: None,
+        actions_aligned: true,
+        // Not in the paper: angle's.
+        paper_saver_lr: 0.01,
+        paper_a2c_lr: 0.0003,
+        paper_pretrain_batches: 100_000,
+    },
+];
+
+impl EnvKind {
+    /// Its row of [`PRESETS`].
+    pub fn preset(self) -> &'static Preset {
+        &PRESETS[self as usize]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each row sits at its kind's index, its name parses back to its kind, and its
+    /// default dimension is valid, with a layout and bounds of matching sizes.
+    #[test]
+    fn every_row_is_its_kinds_and_consistent() {
+        for (i, p) in PRESETS.iter().enumerate() {
+            assert_eq!(p.kind as usize, i, "{}", p.name);
+            assert_eq!(EnvKind::parse(p.name).unwrap(), p.kind);
+            let d = p.default_dim;
+            assert_eq!((p.bad_dim)(d), None, "{}", p.name);
+            let (l, b) = ((p.layout)(d), (p.bounds)(d));
+            assert_eq!(l.aligned_dim, d, "{}", p.name);
+            assert_eq!(b.obs_low.len(), l.obs_dim, "{}", p.name);
+            assert_eq!((p.make)(d, 10).layout(), l, "{}", p.name);
+        }
+    }
+}
