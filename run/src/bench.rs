@@ -206,12 +206,22 @@ pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
     )?)
 }
 
-/// Seconds per update of `algo` on angle d (a synthetic batch, a random PCPN), with
-/// the update's FLOPs and transitions.
-fn time_update(algo: Algo, d: usize, seconds: f64, threads: usize) -> Result<(f64, f64, usize)> {
+/// Seconds per update of `algo` on angle d (a synthetic batch, a random PCPN; with
+/// `tune`, SAVER's PCPN trained on each batch at a custom env's rate), with the
+/// update's FLOPs and transitions.
+fn time_update(
+    algo: Algo,
+    d: usize,
+    seconds: f64,
+    threads: usize,
+    tune: bool,
+) -> Result<(f64, f64, usize)> {
     let dev = Device::Cpu;
     let spec = EnvSpec::new(EnvKind::Angle, d)?;
-    let config = RunConfig::recommended(&spec, algo, 1);
+    let mut config = RunConfig::recommended(&spec, algo, 1);
+    if tune {
+        config.saver.pcpn_tune_lr = saver_core::config::CUSTOM_SAVER_PCPN_TUNE_LR;
+    }
     let pcpn = algo
         .has_pcpn()
         .then(|| random_pcpn(&spec, &dev))
@@ -257,7 +267,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let mut single = Vec::new();
     for algo in [Algo::A2c, Algo::Saver, Algo::Qrrl] {
         for &d in &args.dims {
-            let (s, flops, n) = time_update(algo, d, args.seconds, 1)?;
+            let (s, flops, n) = time_update(algo, d, args.seconds, 1, false)?;
             if algo == Algo::Saver {
                 single.push(s);
             }
@@ -271,6 +281,25 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 100.0 * gflops / peak
             );
         }
+    }
+    crate::out!(
+        "\nSAVER with its PCPN trained on each batch (--pcpn-tune-lr, a custom env's default), one core:"
+    );
+    crate::out!(
+        "{:<6} {:>3} {:>12} {:>14}",
+        "algo",
+        "d",
+        "ms/update",
+        "vs frozen"
+    );
+    for (&d, frozen) in args.dims.iter().zip(&single) {
+        let (s, _, _) = time_update(Algo::Saver, d, args.seconds, 1, true)?;
+        crate::out!(
+            "{:<6} {d:>3} {:>12.2} {:>13.2}x",
+            "saver",
+            s * 1e3,
+            s / frozen
+        );
     }
     let threads = threads_for(args.threads.unwrap_or(crate::pcpn_threads()));
     if threads > 1 {
@@ -286,7 +315,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             "vs 1 thread"
         );
         for (&d, one) in args.dims.iter().zip(single) {
-            let (s, _, n) = time_update(Algo::Saver, d, args.seconds, threads)?;
+            let (s, _, n) = time_update(Algo::Saver, d, args.seconds, threads, false)?;
             crate::out!(
                 "{:<6} {d:>3} {:>12.2} {:>14.0} {:>13.2}x",
                 "saver",
