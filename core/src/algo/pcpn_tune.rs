@@ -6,11 +6,12 @@
 //! reset states); these samples do. The actor always reads a frozen snapshot, so no
 //! gradient of the actor loss reaches the PCPN's weights.
 
-use super::{check_finite, restore_optimizer, AlgoState, OPTIMIZER_STEPS};
+use super::{
+    check_finite, quantile_net_grads, restore_optimizer, AlgoState, Loss, OPTIMIZER_STEPS,
+};
 use crate::config::OptimizerKind;
 use crate::nets::{ParamSet, Pcpn};
 use crate::optim::Optimizer;
-use crate::pretrain::{pcpn_grads, Samples};
 use crate::{CoreError, Result};
 use candle_core::backprop::GradStore;
 use candle_core::Tensor;
@@ -62,12 +63,22 @@ impl PcpnTuner {
         n: usize,
         taus: &[f32],
     ) -> Result<(f32, GradStore)> {
-        let samples = Samples {
-            x,
-            delta: delta.to_vec(),
-            n,
-        };
-        let (loss, grads) = pcpn_grads(&self.net, &samples, taus, self.threads)?;
+        // The pretraining loss (§9): weight 1 per row and dim, no monotonic penalty.
+        let width = x.len() / n;
+        let x = Tensor::from_vec(x, (n, width), self.net.l0.w.device())?;
+        let ones = vec![1.0f32; delta.len()];
+        let g = quantile_net_grads(
+            &self.net,
+            &x,
+            delta,
+            &ones,
+            taus,
+            Loss::PRETRAIN,
+            0.0,
+            self.threads,
+            None,
+        )?;
+        let (loss, grads) = (g.quantile_loss, g.grads);
         check_finite("pcpn_tune_loss", loss)?;
         let norm = self.opt.grad_norm(&grads)?;
         if !norm.is_finite() {
