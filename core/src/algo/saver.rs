@@ -23,16 +23,8 @@ use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
 use saver_proto::NamedTensor;
 
-const STATS: &[&str] = &[
-    "actor_loss",
-    "mon_loss",
-    "critic_loss",
-    "mu_abs_max",
-    "log_std_mean",
-    "grad_norm",
-];
-
-/// [`STATS`] and the PCPN's loss on the batch when it keeps learning.
+/// The update's statistics, and last the PCPN's loss on the batch when it keeps
+/// learning ([`STATS`] without it).
 const STATS_TUNED: &[&str] = &[
     "actor_loss",
     "mon_loss",
@@ -42,6 +34,9 @@ const STATS_TUNED: &[&str] = &[
     "grad_norm",
     "pcpn_tune_loss",
 ];
+
+/// The update's statistics with the PCPN frozen.
+const STATS: &[&str] = STATS_TUNED.split_at(STATS_TUNED.len() - 1).0;
 
 /// The SAVER learner state.
 pub struct Saver {
