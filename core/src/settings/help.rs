@@ -125,7 +125,7 @@ mod tests {
         );
         assert_eq!(
             help("Tune", "saver.pcpn_tune_lr"),
-            "Tune [default: 0.0] (saver on a custom env: 0.001)"
+            "Tune [default: 0.0] (saver on a custom env: 0.0001)"
         );
         assert_eq!(
             help("Bound", "head.mu_bound"),
