@@ -6,7 +6,7 @@ use crate::grpc::GrpcLink;
 use crate::{run_actor, ActorError, ActorSummary};
 use saver_core::link::{LinkError, Registration};
 use saver_proto::ClientAccess;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 /// Who to act for, and how.
@@ -60,8 +60,8 @@ pub fn backoff(n: u32) -> Duration {
     Duration::from_secs_f64(base.min(5.0) * rand::random_range(0.5..1.0))
 }
 
-/// Acts for `a.learner` until the run finishes (or `stop` is set); the totals over
-/// every connection.
+/// Acts for `a.learner` until the run finishes (or `stop` is set: then a lost link is
+/// not reconnected); the totals over every connection that ended without an error.
 pub fn run_remote(a: &RemoteActor, stop: &AtomicBool) -> Result<ActorSummary, RemoteError> {
     let mut total = ActorSummary::default();
     let mut attempt = 0u32;
@@ -100,6 +100,10 @@ pub fn run_remote(a: &RemoteActor, stop: &AtomicBool) -> Result<ActorSummary, Re
                 })
             }
         };
+        if stop.load(Ordering::Relaxed) {
+            // Asked to stop: no reconnecting to a learner that went away meanwhile.
+            return Ok(total);
+        }
         if last_contact.elapsed() > a.give_up {
             return Err(RemoteError::GaveUp {
                 name: a.name.clone(),
