@@ -26,7 +26,7 @@ pub struct PcpnTuner {
     net: Pcpn,
     /// Its variables.
     params: ParamSet,
-    /// Its optimiser (pretraining's kind, at the tuning rate).
+    /// Its optimiser (the run's kind, at the tuning rate; no clip, no decay).
     opt: Optimizer,
     /// Threads of the fused blocks.
     threads: usize,
