@@ -237,14 +237,7 @@ impl Pretrainer {
 
     /// The trained PCPN as a frozen copy (plain tensors).
     pub fn frozen(&self) -> Result<Pcpn> {
-        let tensors = self.pcpn.tensors()?;
-        let layout = self.source.layout();
-        Pcpn::frozen(&layout, &|name| {
-            tensors
-                .iter()
-                .find(|(n, _)| n == name)
-                .map(|(_, t)| t.clone())
-        })
+        self.pcpn.snapshot()
     }
 }
 

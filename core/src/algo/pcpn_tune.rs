@@ -53,23 +53,15 @@ impl PcpnTuner {
         self.threads = n;
     }
 
-    /// The quantile loss of `n` samples — `x` [n, I] = [o, μ, log σ], `delta` [n, d] —
+    /// The quantile loss of the rows `x` [n, I] = [o, μ, log σ] against `delta` [n, d]
     /// at quantiles `taus` [d, n, K], and its gradients; a non-finite loss or gradient
     /// is [`CoreError::NonFinite`]. Nothing changes until [`Self::apply`].
-    pub fn grads(
-        &self,
-        x: Vec<f32>,
-        delta: &[f32],
-        n: usize,
-        taus: &[f32],
-    ) -> Result<(f32, GradStore)> {
+    pub fn grads(&self, x: &Tensor, delta: &[f32], taus: &[f32]) -> Result<(f32, GradStore)> {
         // The pretraining loss (§9): weight 1 per row and dim, no monotonic penalty.
-        let width = x.len() / n;
-        let x = Tensor::from_vec(x, (n, width), self.net.l0.w.device())?;
         let ones = vec![1.0f32; delta.len()];
         let g = quantile_net_grads(
             &self.net,
-            &x,
+            x,
             delta,
             &ones,
             taus,
@@ -96,10 +88,7 @@ impl PcpnTuner {
 
     /// A frozen snapshot of the current weights (what the actor reads).
     pub fn frozen(&self) -> Result<Pcpn> {
-        let t = self.net.tensors()?;
-        Pcpn::frozen_net("pcpn", self.net.l0.w.dim(0)?, self.net.dim(), &|name| {
-            t.iter().find(|(n, _)| n == name).map(|(_, x)| x.clone())
-        })
+        self.net.snapshot()
     }
 
     /// Its weights, optimiser slots and step count, added to `state`.

@@ -122,18 +122,6 @@ pub fn mu_raw_penalty(raw: &Tensor, w: f64, entries: &[usize]) -> Result<Tensor>
     Ok((over.sqr()?.sum_all()? * (w / raw.dim(0)? as f64))?)
 }
 
-/// The PCPN's inputs [o, μ, log σ] of `b` rows from row-major obs, μ and log σ.
-fn pcpn_rows(obs: &[f32], mu: &[f32], log_std: &[f32], b: usize) -> Vec<f32> {
-    let (o, m, s) = (obs.len() / b, mu.len() / b, log_std.len() / b);
-    let mut x = Vec::with_capacity(b * (o + m + s));
-    for r in 0..b {
-        x.extend_from_slice(&obs[r * o..(r + 1) * o]);
-        x.extend_from_slice(&mu[r * m..(r + 1) * m]);
-        x.extend_from_slice(&log_std[r * s..(r + 1) * s]);
-    }
-    x
-}
-
 /// SAVER's registration ([`super::entry`]).
 pub(crate) const ENTRY: super::Entry = super::Entry {
     build: build_saver,
@@ -243,11 +231,12 @@ impl Algorithm for Saver {
             }
         };
         let mut dmu_host = None;
+        // The PCPN's inputs [o, μ, log σ] as constants (the fast path's and the tuner's).
+        let x = Tensor::cat(&[&obs, &mu, &log_std], 1)?.detach();
         let (actor, mon, agent_loss) = match self.path {
             GradPath::Fast => {
                 // dL/dμ and dL/dlog σ by hand, then the surrogate Σ μ·dμ + Σ log σ·dlog σ
                 // carries them into the agent through autograd.
-                let x = Tensor::cat(&[&obs, &mu, &log_std], 1)?.detach();
                 let g = self
                     .pcpn
                     .input_grad(&x, target, &adv_host, &taus, &self.cfg)?;
@@ -286,9 +275,8 @@ impl Algorithm for Saver {
         // The PCPN's step on this batch, computed before anything changes.
         let tune = match &self.tuner {
             Some(t) => {
-                let x = pcpn_rows(&batch.obs, &mu_host, &log_std_host, b);
                 let taus = uniform01(&mut self.rng, d * b * k);
-                Some(t.grads(x, &batch.state_delta, b, &taus)?)
+                Some(t.grads(&x, &batch.state_delta, &taus)?)
             }
             None => None,
         };

@@ -142,6 +142,13 @@ impl Pcpn {
         Self::from_ordered(t, self.dim, &self.prefix)
     }
 
+    /// A frozen copy of the current weights (plain tensors: a later optimiser step on
+    /// this network's variables does not change it).
+    pub fn snapshot(&self) -> Result<Self> {
+        let t = self.tensors()?.into_iter().map(|(_, x)| x).collect();
+        Self::from_ordered(t, self.dim, &self.prefix)
+    }
+
     /// A frozen PCPN from named tensors (checked against the layout's shapes).
     pub fn frozen(layout: &EnvLayout, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<Self> {
         let (i, d) = (layout.pcpn_input_dim(), layout.aligned_dim);
