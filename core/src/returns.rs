@@ -1,6 +1,7 @@
 //! n-step returns inside a rollout (GAE with λ = 1; docs/ALGORITHM.md §6), per component:
 //! R_n = bootstrap, R_t = r_t + γ·(1 − done_t)·R_{t+1}, or, where the episode ended at
-//! t by its step limit and the run bootstraps there, R_t = r_t + γ·V(o_final).
+//! t by its step limit and the run bootstraps there, R_t = r_t + γ·V(o_final); and
+//! GAE(λ) advantages for PPO.
 
 /// Returns of `n_traj` trajectories of `n_steps` steps with `c` reward components.
 ///
@@ -35,6 +36,55 @@ pub fn n_step_returns(
                     (true, None) => 0.0,
                 };
                 acc[j] = rewards[row + j] + gamma * next;
+                out[row + j] = acc[j];
+            }
+        }
+    }
+    out
+}
+
+/// Generalised advantage estimates (GAE(λ), Schulman et al. 2016; docs/ALGORITHM.md
+/// §15) of `n_traj` trajectories of `n_steps` steps with `c` reward components, each
+/// component on its own:
+///   δ_t = r_t + γ·V_next − V(o_t),   A_t = δ_t + γλ·(1 − done_t)·A_{t+1},   A_n = 0,
+/// where V_next is V(o_{t+1}) inside an episode, the trajectory's `bootstrap` after its
+/// last step, and at a step that ended an episode the value in `ends` (V of the final
+/// observation at a bootstrapped timeout, 0 elsewhere; all 0 without `ends`).
+/// `values` is V(o_t) with the layout of `rewards`; the other layouts are
+/// [`n_step_returns`]'. With λ = 1, A_t + V(o_t) is [`n_step_returns`]' R_t.
+#[allow(clippy::too_many_arguments)]
+pub fn gae(
+    rewards: &[f32],
+    values: &[f32],
+    dones: &[bool],
+    bootstrap: &[f32],
+    ends: Option<&[f32]>,
+    n_steps: usize,
+    c: usize,
+    gamma: f32,
+    lambda: f32,
+) -> Vec<f32> {
+    let n_traj = dones.len() / n_steps;
+    debug_assert_eq!(rewards.len(), n_traj * n_steps * c);
+    debug_assert_eq!(values.len(), rewards.len());
+    debug_assert_eq!(bootstrap.len(), n_traj * c);
+    debug_assert!(ends.is_none_or(|v| v.len() == rewards.len()));
+    let mut out = vec![0.0f32; rewards.len()];
+    for e in 0..n_traj {
+        let mut acc = vec![0.0f32; c];
+        for t in (0..n_steps).rev() {
+            let row = (e * n_steps + t) * c;
+            let done = dones[e * n_steps + t];
+            for j in 0..c {
+                let next = match (done, ends) {
+                    (false, _) if t + 1 == n_steps => bootstrap[e * c + j],
+                    (false, _) => values[row + c + j],
+                    (true, Some(v)) => v[row + j],
+                    (true, None) => 0.0,
+                };
+                let delta = rewards[row + j] + gamma * next - values[row + j];
+                let carry = if done { 0.0 } else { gamma * lambda * acc[j] };
+                acc[j] = delta + carry;
                 out[row + j] = acc[j];
             }
         }
@@ -105,6 +155,53 @@ mod tests {
         let mut a = [5.0f32, 5.0, 5.0];
         normalize_advantages(&mut a, 1, false);
         assert_eq!(a, [0.0; 3]);
+    }
+
+    #[test]
+    fn gae_by_hand_and_lambda_one_is_the_n_step_return() {
+        // One trajectory, 3 steps, 2 components, γ = 0.5, λ = 0.5; the episode ends by
+        // its step limit at step 1 (index 1) with the final observation valued (4, 8);
+        // bootstrap (10, 20); V(o_t) = (1, 1), (2, 2), (3, 3); rewards as below.
+        //   t = 2: δ = r2 + 0.5·bootstrap − V2 = (5 + 5 − 3, 6 + 10 − 3) = (7, 13); A2 = δ
+        //   t = 1: done, next = V_final:  δ = (3 + 2 − 2, 4 + 4 − 2) = (3, 6); A1 = δ (no carry)
+        //   t = 0: δ = r0 + 0.5·V1 − V0 = (1 + 1 − 1, 2 + 1 − 1) = (1, 2);
+        //          A0 = δ + 0.25·A1 = (1.75, 3.5)
+        let rewards = [1., 2., 3., 4., 5., 6.];
+        let values = [1., 1., 2., 2., 3., 3.];
+        let dones = [false, true, false];
+        let ends = [0., 0., 4., 8., 0., 0.];
+        let a = gae(
+            &rewards,
+            &values,
+            &dones,
+            &[10., 20.],
+            Some(&ends),
+            3,
+            2,
+            0.5,
+            0.5,
+        );
+        assert_eq!(a, vec![1.75, 3.5, 3., 6., 7., 13.]);
+        // λ = 1: A + V is the n-step return of the test below
+        // (a_bootstrapped_timeout_adds_the_discounted_final_value): (3.5, 6), (5, 8), (10, 16).
+        let a = gae(
+            &rewards,
+            &values,
+            &dones,
+            &[10., 20.],
+            Some(&ends),
+            3,
+            2,
+            0.5,
+            1.0,
+        );
+        let r: Vec<f32> = a.iter().zip(values).map(|(a, v)| a + v).collect();
+        let want = n_step_returns(&rewards, &dones, &[10., 20.], Some(&ends), 3, 2, 0.5);
+        assert_eq!(r, want);
+        assert_eq!(want, vec![3.5, 6., 5., 8., 10., 16.]);
+        // Without ends every episode end is terminal: A1 = r1 − V1 = (1, 2).
+        let a = gae(&rewards, &values, &dones, &[10., 20.], None, 3, 2, 0.5, 0.5);
+        assert_eq!(&a[2..4], &[1., 2.]);
     }
 
     #[test]

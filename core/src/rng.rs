@@ -20,7 +20,7 @@ pub fn rng_for(seed: u64, stream: u64) -> SaverRng {
 pub mod streams {
     /// Weight initialisation of agent and critic.
     pub const INIT: u64 = 1;
-    /// The learner's tau draws.
+    /// The learner's draws (SAVER's and QRRL's τ, PPO's minibatch shuffles).
     pub const LEARNER: u64 = 2;
     /// PCPN initialisation and pretraining samples.
     pub const PRETRAIN: u64 = 3;

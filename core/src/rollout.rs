@@ -228,6 +228,9 @@ pub struct Batch {
     pub last_obs: Vec<f32>,
     /// [T·n, action_dim].
     pub actions: Vec<f32>,
+    /// [T·n, payload width]: what the behaviour policy recorded per step
+    /// ([`Rollout::payload`]; PPO's old log-probabilities come from it).
+    pub payload: Vec<f32>,
     /// [T·n, d].
     pub state_delta: Vec<f32>,
     /// [T·n, d].
@@ -257,6 +260,7 @@ impl Batch {
             obs: vec![],
             last_obs: vec![],
             actions: vec![],
+            payload: vec![],
             state_delta: vec![],
             vector_reward: vec![],
             done: vec![],
@@ -277,6 +281,7 @@ impl Batch {
                 b.last_obs.extend_from_slice(&traj[n * o..]);
             }
             b.actions.extend_from_slice(&r.actions);
+            b.payload.extend_from_slice(&r.payload);
             b.state_delta.extend_from_slice(&r.state_delta);
             b.vector_reward.extend_from_slice(&r.vector_reward);
             b.done.extend_from_slice(&r.done);

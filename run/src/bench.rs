@@ -81,11 +81,13 @@ fn mlp_flops(rows: usize, dims: &[usize]) -> f64 {
         .sum()
 }
 
-/// FLOPs of one update as counted in the module doc.
-pub fn update_flops(algo: Algo, l: &EnvLayout, b: usize, t: usize, k: usize) -> f64 {
+/// FLOPs of one update of `config`'s algorithm on `b` steps of `t` trajectories, as
+/// counted in the module doc.
+pub fn update_flops(config: &RunConfig, b: usize, t: usize) -> f64 {
+    let (l, k) = (&config.env.layout(), config.saver.quantiles);
     let rows = b + t;
     let [h0, h1, h2] = TRUNK;
-    match algo {
+    match config.algo {
         Algo::A2c => 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim() + 1]),
         Algo::Saver => {
             let agent = 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
@@ -104,6 +106,14 @@ pub fn update_flops(algo: Algo, l: &EnvLayout, b: usize, t: usize, k: usize) -> 
             let heads = c as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
             let embed = (b * k * c * PCPN_CHUNK) as f64;
             critic + 3.0 * (shared + heads) + 2.0 * embed
+        }
+        Algo::Ppo => {
+            // The critic's values on every row, then each epoch trains agent and critic
+            // on every step once, then one agent forward for the diagnostics.
+            let c = if config.ppo.vector { l.aligned_dim } else { 1 };
+            let agent = mlp_flops(b, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
+            let critic = |n| mlp_flops(n, &[l.obs_dim, h0, h1, h2, c]);
+            critic(rows) + config.ppo.epochs as f64 * 3.0 * (agent + critic(b)) + agent
         }
     }
 }
@@ -170,9 +180,9 @@ fn pretraining(args: &BenchArgs, peak: f64, threads: usize) -> Result<()> {
     Ok(())
 }
 
-/// A batch of 16 trajectories × 8 steps with random contents of the right shapes.
-fn synthetic_batch(l: &EnvLayout, seed: u64) -> Batch {
-    let (t, n) = (16, 8);
+/// A batch of 16 trajectories × `n` steps with random contents of the right shapes.
+fn synthetic_batch(l: &EnvLayout, n: usize, seed: u64) -> Batch {
+    let t = 16;
     let b = t * n;
     let mut rng = rng_for(seed, 9);
     let mut u = |len: usize| {
@@ -187,6 +197,14 @@ fn synthetic_batch(l: &EnvLayout, seed: u64) -> Batch {
         obs: u(b * l.obs_dim),
         last_obs: u(t * l.obs_dim),
         actions: u(b * l.action_dim()),
+        // A Gaussian payload: μ in (−1, 1), log σ = −1.
+        payload: (0..b)
+            .flat_map(|_| {
+                let mu = u(l.mu_dim());
+                mu.into_iter()
+                    .chain(std::iter::repeat_n(-1.0, l.log_std_dim()))
+            })
+            .collect(),
         state_delta: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
         vector_reward: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
         done: (0..b).map(|i| i % 97 == 0).collect(),
@@ -228,18 +246,14 @@ fn time_update(
         .transpose()?;
     let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
     a.set_threads(threads);
-    let batch = synthetic_batch(&spec.layout(), d as u64);
+    // Each algorithm's own default batch: 16 actors x its rollout (PPO's minibatches
+    // are shares of it).
+    let batch = synthetic_batch(&spec.layout(), config.rollout as usize, d as u64);
     let s = time(seconds, || {
         a.update(&batch)?;
         Ok(())
     })?;
-    let flops = update_flops(
-        algo,
-        &spec.layout(),
-        batch.len(),
-        batch.n_traj,
-        config.saver.quantiles,
-    );
+    let flops = update_flops(&config, batch.len(), batch.n_traj);
     Ok((s, flops, batch.len()))
 }
 
@@ -254,7 +268,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "single-core matmul (1024^3, candle): {peak:.1} GFLOP/s; candle uses {} thread(s)\n",
         candle_core::utils::get_num_threads()
     );
-    crate::out!("updates on one core (B = 128, K = 32; SAVER's PCPN blocks on 1 thread):");
+    crate::out!(
+        "updates on one core (B = 128, K = 32; PPO: B = 2048, 10 epochs of 32 minibatches; \
+         SAVER's PCPN blocks on 1 thread):"
+    );
     crate::out!(
         "{:<6} {:>3} {:>12} {:>14} {:>10} {:>12}",
         "algo",
@@ -265,7 +282,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "of peak"
     );
     let mut single = Vec::new();
-    for algo in [Algo::A2c, Algo::Saver, Algo::Qrrl] {
+    for algo in [Algo::A2c, Algo::Saver, Algo::Qrrl, Algo::Ppo] {
         for &d in &args.dims {
             let (s, flops, n) = time_update(algo, d, args.seconds, 1, false)?;
             if algo == Algo::Saver {

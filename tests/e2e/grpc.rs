@@ -90,7 +90,17 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
         Algo::Qrrl,
         20 * 4 * 8,
     );
-    for mut config in [saver, a2c, qrrl] {
+    // PPO on angle d = 2: its old log-probabilities come from the payload the actors
+    // send; 2 passes of 4 minibatches per update.
+    let mut ppo = RunConfig::recommended(
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        Algo::Ppo,
+        20 * 4 * 8,
+    );
+    ppo.rollout = 8;
+    ppo.ppo.epochs = 2;
+    ppo.ppo.minibatches = 4;
+    for mut config in [saver, a2c, qrrl, ppo] {
         config.actors = 4;
         let pcpn = (config.algo == Algo::Saver)
             .then(|| random_pcpn(&config.env, &candle_core::Device::Cpu).unwrap());

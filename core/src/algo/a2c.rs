@@ -60,7 +60,7 @@ impl A2c {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
         let agent = Agent::new(&layout, config.head, true, &mut rng, dev)?;
-        let opt = super::run_optimizer(agent.params().vars.clone(), config)?;
+        let opt = super::run_optimizer(agent.params().vars.clone(), config, 1)?;
         Ok(Self {
             agent,
             opt,

@@ -6,6 +6,7 @@ mod dense;
 pub(crate) mod fused;
 pub(crate) mod pcpn_tune;
 pub mod per_dim;
+mod ppo;
 mod qnet_grad;
 mod qrrl;
 mod saver;
@@ -14,6 +15,7 @@ pub mod saver_signal;
 
 pub use a2c::A2c;
 pub use fused::{threads_for, Loss};
+pub use ppo::Ppo;
 pub use qnet_grad::{quantile_net_grads, NetGrads};
 pub use qrrl::{qrrl_actor_losses, Qrrl};
 pub use saver::{tau_tensors, GradPath, Saver};
@@ -182,6 +184,7 @@ pub fn entry(algo: Algo) -> Entry {
         Algo::A2c => a2c::ENTRY,
         Algo::Saver => saver::ENTRY,
         Algo::Qrrl => qrrl::ENTRY,
+        Algo::Ppo => ppo::ENTRY,
     }
 }
 
@@ -296,10 +299,12 @@ pub(crate) fn check_finite(name: &str, v: f32) -> Result<f32> {
 
 /// The optimiser a run's config asks for over `vars`: its kind, learning rate,
 /// gradient clip and, with `lr_decay`, a rate that falls linearly to zero over the
-/// run's updates (beside the registry, so that optim.rs knows no config).
+/// run's updates, of `steps_per_update` optimiser steps each (beside the registry, so
+/// that optim.rs knows no config).
 pub(crate) fn run_optimizer(
     vars: Vec<(String, candle_core::Var)>,
     config: &RunConfig,
+    steps_per_update: u64,
 ) -> Result<crate::optim::Optimizer> {
     let opt = crate::optim::Optimizer::with_clip(
         vars,
@@ -308,7 +313,7 @@ pub(crate) fn run_optimizer(
         config.grad_clip,
     )?;
     Ok(if config.lr_decay {
-        opt.decaying_over(config.steps.div_ceil(config.batch_transitions()))
+        opt.decaying_over(config.steps.div_ceil(config.batch_transitions()) * steps_per_update)
     } else {
         opt
     })

@@ -113,7 +113,7 @@ impl Qrrl {
             net,
             net_params,
             critic,
-            opt: super::run_optimizer(vars, config)?,
+            opt: super::run_optimizer(vars, config, 1)?,
             rng: rng_for(config.seed, streams::LEARNER),
             layout,
             gamma: config.gamma as f32,

@@ -143,7 +143,7 @@ impl Saver {
         let critic = Critic::new(&layout, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
-        let opt = super::run_optimizer(vars, config)?;
+        let opt = super::run_optimizer(vars, config, 1)?;
         let tuner = (config.saver.pcpn_tune_lr > 0.0)
             .then(|| PcpnTuner::new(&pcpn, config.optimizer, config.saver.pcpn_tune_lr))
             .transpose()?;

@@ -40,6 +40,7 @@ pub(super) fn random_batch(
         obs: uniform(&mut rng, b * l.obs_dim, -1.0, 1.0),
         last_obs: uniform(&mut rng, t * l.obs_dim, -1.0, 1.0),
         actions: uniform(&mut rng, b * l.action_dim(), -action_bound, action_bound),
+        payload: gaussian_payload(l, b),
         state_delta: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
         vector_reward: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
         done,
@@ -47,6 +48,15 @@ pub(super) fn random_batch(
         timeout_obs: vec![],
         steps: b as u64,
     }
+}
+
+/// A Gaussian behaviour policy's payload for `b` steps: μ = 0.1 in every mean entry,
+/// log σ = −1 (the agent's initial σ).
+pub(super) fn gaussian_payload(l: &EnvLayout, b: usize) -> Vec<f32> {
+    let row: Vec<f32> = std::iter::repeat_n(0.1, l.mu_dim())
+        .chain(std::iter::repeat_n(-1.0, l.log_std_dim()))
+        .collect();
+    row.repeat(b)
 }
 
 /// A synthetic batch of 2 trajectories × 3 steps.

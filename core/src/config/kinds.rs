@@ -16,14 +16,17 @@ pub enum Algo {
     /// Standalone QRRL (paper Section 3): the policy is an implicit quantile network,
     /// any action distribution, multi-modal included; scalar reward, no PCPN.
     Qrrl,
+    /// The PPO baseline (clipped surrogate, GAE(λ), epochs of minibatches): scalar
+    /// reward, or a vector critic on the vector reward.
+    Ppo,
 }
 
 impl Algo {
-    /// Parses `saver`, `a2c` or `qrrl`.
+    /// Parses `saver`, `a2c`, `qrrl` or `ppo`.
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
             CoreError::Config(format!(
-                "algo: unknown algorithm {:?} (expected saver, a2c or qrrl)",
+                "algo: unknown algorithm {:?} (expected saver, a2c, qrrl or ppo)",
                 crate::clip_text(s)
             ))
         })
@@ -34,6 +37,7 @@ impl Algo {
             Self::Saver => "saver",
             Self::A2c => "a2c",
             Self::Qrrl => "qrrl",
+            Self::Ppo => "ppo",
         }
     }
     /// Whether it learns through a frozen PCPN (and so has pretraining settings that

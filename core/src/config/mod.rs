@@ -5,11 +5,13 @@
 
 mod head;
 mod kinds;
+mod ppo;
 mod pretrain;
 pub(crate) mod unbounded;
 
 pub use head::HeadConfig;
 pub use kinds::{Algo, DeltaTarget, Mode, OptimizerKind, SampleDistribution};
+pub use ppo::PpoConfig;
 pub use pretrain::{
     paper_lr, paper_pretrain_batches, preset_or_angle, PretrainConfig, PRETRAIN_EVAL_BATCHES,
 };
@@ -128,6 +130,9 @@ pub struct RunConfig {
     pub head: HeadConfig,
     /// SAVER constants.
     pub saver: SaverConfig,
+    /// PPO constants (a config.toml written before PPO existed reads as the defaults).
+    #[serde(default)]
+    pub ppo: PpoConfig,
     /// PCPN pretraining (SAVER).
     pub pretrain: PretrainConfig,
     /// SAVER: the weights sha256 of the PCPN this run uses. `None` before a PCPN is
@@ -181,6 +186,13 @@ pub const HIGH_DIM_PRETRAIN_BATCHES: u64 = 100_000;
 /// The floor on log σ of SAVER's default on angle from [`HIGH_DIM_ANGLE`] on (σ ≥ 0.2:
 /// a pair at its pole gets out in proportion to σ, `bench/angle_pole.py`).
 pub const HIGH_DIM_LOG_STD_MIN: f64 = -1.6;
+/// PPO's learning rate (Adam; Stable-Baselines3's).
+pub const RECOMMENDED_PPO_LR: f64 = 3e-4;
+/// PPO's rollout length: 16 actors x 128 steps make Stable-Baselines3's 2,048-step
+/// batch.
+pub const RECOMMENDED_PPO_ROLLOUT: u32 = 128;
+/// PPO's gradient-norm clip (Stable-Baselines3's `max_grad_norm`).
+pub const RECOMMENDED_PPO_GRAD_CLIP: f64 = 0.5;
 /// Async mode's policy lag unless set.
 pub const DEFAULT_MAX_LAG: u64 = 4;
 
@@ -224,6 +236,7 @@ impl RunConfig {
                 target: DeltaTarget::Observed,
                 pcpn_tune_lr: 0.0,
             },
+            ppo: PpoConfig::default(),
             pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
             pcpn_sha256: None,
         }
@@ -267,6 +280,16 @@ impl RunConfig {
         if algo == Algo::Saver && env.kind().is_none() {
             c.saver.mu_raw_penalty = CUSTOM_SAVER_MU_RAW_PENALTY;
             c.saver.pcpn_tune_lr = CUSTOM_SAVER_PCPN_TUNE_LR;
+        }
+        if algo == Algo::Ppo {
+            // Not in the paper: Stable-Baselines3's PPO settings, with the bounded head
+            // (μ = tanh, log σ in [-4.6, 0]) and bootstrapped timeouts.
+            c.optimizer = OptimizerKind::Adam;
+            c.lr = RECOMMENDED_PPO_LR;
+            c.rollout = RECOMMENDED_PPO_ROLLOUT;
+            c.grad_clip = Some(RECOMMENDED_PPO_GRAD_CLIP);
+            c.head = HeadConfig::IN_PCPN_DOMAIN;
+            c.bootstrap_timeout = true;
         }
         if algo == Algo::A2c && env.kind().is_none() {
             c.head = HeadConfig::IN_PCPN_DOMAIN;
@@ -389,6 +412,7 @@ impl RunConfig {
                 return bad(field, "an entry is listed twice".into());
             }
         }
+        self.ppo.validate()?;
         self.pretrain.validate()?;
         self.pretrain.check_env(&self.env)?;
         if let Some(n) = self.env.kind().and_then(|k| k.fixed_episode_steps()) {

@@ -33,12 +33,13 @@ pub const PRETRAIN_EVAL_BATCHES: usize = 16;
 
 /// The paper's learning rate for an env and algorithm (docs/ALGORITHM.md §12; the
 /// preset's row, [`crate::env::PRESETS`]). The paper does not run standalone QRRL; its
-/// "paper" settings are A2C's (the same actor-critic loop, optimiser and rate).
+/// "paper" settings are A2C's (the same actor-critic loop, optimiser and rate), and so
+/// are PPO's.
 pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
     let p = kind.preset();
     match algo {
         Algo::Saver => p.paper_saver_lr,
-        Algo::A2c | Algo::Qrrl => p.paper_a2c_lr,
+        Algo::A2c | Algo::Qrrl | Algo::Ppo => p.paper_a2c_lr,
     }
 }
 

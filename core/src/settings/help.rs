@@ -20,6 +20,8 @@ struct Defaults {
     high_dim: Settings,
     /// SAVER's default on a custom env (one with continuous actions).
     custom: Settings,
+    /// QRRL's and PPO's defaults on angle d=4, by label.
+    more: Vec<(&'static str, Settings)>,
 }
 
 fn defaults() -> &'static Defaults {
@@ -47,7 +49,15 @@ fn defaults() -> &'static Defaults {
         ));
         let custom = EnvSpec::unit_custom("custom", 1.0).expect("a custom env");
         let custom = dotted(&RunConfig::recommended(&custom, Algo::Saver, DEFAULT_STEPS));
+        let more = [Algo::Qrrl, Algo::Ppo]
+            .into_iter()
+            .map(|a| {
+                let c = RunConfig::recommended(&preset(EnvKind::Angle, 4), a, DEFAULT_STEPS);
+                (a.name(), dotted(&c))
+            })
+            .collect();
         Defaults {
+            more,
             high_dim,
             custom,
             angle: ["a2c", "saver", "--faithful saver"]
@@ -99,6 +109,12 @@ pub fn help(text: &str, path: &str) -> String {
     if custom != values[1].1 {
         out.push_str(&format!(" (saver on a custom env: {custom})"));
     }
+    for (label, t) in &d.more {
+        let v = shown(t, path);
+        if v != *first {
+            out.push_str(&format!(" ({label}: {v})"));
+        }
+    }
     out
 }
 
@@ -111,13 +127,17 @@ mod tests {
         assert_eq!(
             help("Learning rate", "lr"),
             "Learning rate [default: a2c 0.0003, saver 0.001, --faithful saver 0.01] \
-             (on angle; select and arm: docs/ALGORITHM.md)"
+             (on angle; select and arm: docs/ALGORITHM.md) (qrrl: 0.001)"
         );
         assert_eq!(help("Discount γ", "gamma"), "Discount γ [default: 0.99]");
         assert_eq!(
+            help("Rollout", "rollout"),
+            "Rollout [default: 8] (ppo: 128)"
+        );
+        assert_eq!(
             help("Floor", "head.log_std_min"),
             "Floor [default: a2c -inf, saver -4.6, --faithful saver -inf] \
-             (saver on angle d >= 8: -1.6)"
+             (saver on angle d >= 8: -1.6) (ppo: -4.6)"
         );
         assert_eq!(
             help("Wall", "saver.mu_raw_penalty"),
@@ -129,7 +149,7 @@ mod tests {
         );
         assert_eq!(
             help("Bound", "head.mu_bound"),
-            "Bound [default: a2c inf, saver 1.0, --faithful saver inf]"
+            "Bound [default: a2c inf, saver 1.0, --faithful saver inf] (ppo: 1.0)"
         );
     }
 }

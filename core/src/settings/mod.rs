@@ -148,6 +148,28 @@ pub struct SaverSettings {
     pub qrrl_vector: Option<bool>,
 }
 
+/// PPO's constants: `[ppo]` in a file.
+#[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PpoSettings {
+    #[arg(id = "ppo_epochs", value_name = "N", long = "ppo-epochs", help = help("PPO: passes over each batch", "ppo.epochs"))]
+    pub epochs: Option<usize>,
+    #[arg(id = "ppo_minibatches", value_name = "N", long = "ppo-minibatches", help = help("PPO: minibatches per pass", "ppo.minibatches"))]
+    pub minibatches: Option<usize>,
+    #[arg(id = "ppo_clip", value_name = "EPS", long = "ppo-clip", allow_hyphen_values = true, help = help("PPO: ε of the clipped surrogate", "ppo.clip"))]
+    pub clip: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("PPO: λ of GAE(λ)", "ppo.gae_lambda"))]
+    pub gae_lambda: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("PPO: clip the value's move from its value at the batch's start (0: unclipped)", "ppo.value_clip"))]
+    pub value_clip: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("PPO: weight of the entropy bonus", "ppo.entropy_coef"))]
+    pub entropy_coef: Option<f64>,
+    #[arg(id = "ppo_adv_norm", value_name = "BOOL", long = "ppo-adv-norm", help = help("PPO: normalise each minibatch's advantages", "ppo.adv_norm"))]
+    pub adv_norm: Option<bool>,
+    #[arg(id = "ppo_vector", value_name = "BOOL", long = "ppo-vector", help = help("PPO: a vector critic on the vector reward, GAE per coordinate, the advantage their sum", "ppo.vector"))]
+    pub vector: Option<bool>,
+}
+
 /// Every setting of a run, each optional: flags, or a `--config` file (the same names
 /// as TOML keys; unknown keys are errors).
 #[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
@@ -164,7 +186,8 @@ pub struct RunSettings {
     #[arg(long)]
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub faithful: bool,
-    #[arg(long, value_enum, help = help("Algorithm", "algo"))]
+    /// Algorithm [default: a2c]
+    #[arg(long, value_enum)]
     pub algo: Option<Algo>,
     #[arg(long, help = help("Env steps (transitions) to train for", "steps"))]
     pub steps: Option<u64>,
@@ -209,6 +232,10 @@ pub struct RunSettings {
     #[command(flatten)]
     #[serde(default)]
     pub saver: SaverSettings,
+    /// PPO's constants.
+    #[command(flatten)]
+    #[serde(default)]
+    pub ppo: PpoSettings,
     /// PCPN pretraining.
     #[command(flatten)]
     #[serde(default)]

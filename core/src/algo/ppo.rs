@@ -1,0 +1,396 @@
+//! PPO (Schulman et al. 2017; docs/ALGORITHM.md §15): per batch, GAE(λ) advantages from a
+//! separate critic, then `epochs` passes of `minibatches` random minibatches, each one
+//! optimiser step on
+//!
+//!   L = −mean min(ρ·Â, clip(ρ, 1 − ε, 1 + ε)·Â) + c_v·mean (V − R)² − β·mean H(π),
+//!
+//! ρ = π(a|o)/π_old(a|o), π_old the behaviour policy the actor recorded (μ, log σ in the
+//! rollout's payload), Â the minibatch's advantages (normalised with `ppo.adv_norm`),
+//! R = A + V_old. With `ppo.value_clip` the squared error is the larger of the plain one
+//! and the one of V_old + clip(V − V_old, ±clip). With `ppo.vector` the critic is
+//! V(o) ∈ R^d on the vector reward, GAE runs per coordinate and Â is the sum over them.
+
+use super::{check_finite, policy_diagnostics, timeout_ends, update_rows, Algorithm, UpdateStats};
+use crate::config::{PpoConfig, RunConfig};
+use crate::env::EnvLayout;
+use crate::nets::{gaussian_log_prob, Agent, Critic};
+use crate::optim::Optimizer;
+use crate::returns::{gae, normalize_advantages};
+use crate::rng::{rng_for, streams, SaverRng};
+use crate::rollout::Batch;
+use crate::{checkpoint, CoreError, Result};
+use candle_core::{Device, Tensor};
+use rand::seq::SliceRandom;
+use saver_proto::NamedTensor;
+
+const STATS: &[&str] = &[
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "approx_kl",
+    "clip_fraction",
+    "explained_variance",
+    "mu_abs_max",
+    "log_std_mean",
+    "grad_norm",
+];
+
+/// The PPO learner state.
+pub struct Ppo {
+    /// The Gaussian agent (no value head).
+    agent: Agent,
+    /// V(o) ∈ R^c: c = 1, or d with `ppo.vector`.
+    critic: Critic,
+    /// One optimiser over agent and critic variables.
+    opt: Optimizer,
+    /// The minibatch shuffles.
+    rng: SaverRng,
+    /// Env layout.
+    layout: EnvLayout,
+    /// Critic outputs.
+    c: usize,
+    /// γ.
+    gamma: f32,
+    /// Value-loss weight.
+    value_coef: f64,
+    /// Bootstrap at the step limit.
+    bootstrap_timeout: bool,
+    /// PPO's constants.
+    cfg: PpoConfig,
+    /// Device.
+    dev: Device,
+}
+
+/// PPO's registration ([`super::entry`]).
+pub(crate) const ENTRY: super::Entry = super::Entry {
+    build: build_ppo,
+    policy: super::gaussian_policy,
+};
+
+fn build_ppo(
+    config: &RunConfig,
+    _pcpn: Option<crate::nets::Pcpn>,
+    dev: &Device,
+) -> Result<Box<dyn Algorithm>> {
+    Ok(Box::new(Ppo::new(config, dev)?))
+}
+
+/// One minibatch's host rows, gathered from the batch.
+struct Minibatch {
+    obs: Tensor,
+    actions: Tensor,
+    old_logp: Tensor,
+    advantage: Tensor,
+    returns: Tensor,
+    old_value: Tensor,
+}
+
+/// Sums over the minibatch steps of one update, for its stats.
+#[derive(Default)]
+struct Totals {
+    policy_loss: f64,
+    value_loss: f64,
+    entropy: f64,
+    approx_kl: f64,
+    clip_fraction: f64,
+    grad_norm: f64,
+    steps: usize,
+}
+
+impl Ppo {
+    /// A fresh agent and critic initialised from the run seed.
+    pub fn new(config: &RunConfig, dev: &Device) -> Result<Self> {
+        let layout = config.env.layout();
+        let mut rng = rng_for(config.seed, streams::INIT);
+        let agent = Agent::new(&layout, config.head, false, &mut rng, dev)?;
+        let c = if config.ppo.vector {
+            layout.aligned_dim
+        } else {
+            1
+        };
+        let critic = Critic::with_sizes(layout.obs_dim, c, &mut rng, dev)?;
+        let mut vars = agent.params().vars.clone();
+        vars.extend(critic.params().vars.clone());
+        let per_update = (config.ppo.epochs * config.ppo.minibatches) as u64;
+        let opt = super::run_optimizer(vars, config, per_update)?;
+        Ok(Self {
+            agent,
+            critic,
+            opt,
+            rng: rng_for(config.seed, streams::LEARNER),
+            layout,
+            c,
+            gamma: config.gamma as f32,
+            value_coef: config.value_coef,
+            bootstrap_timeout: config.bootstrap_timeout,
+            cfg: config.ppo.clone(),
+            dev: dev.clone(),
+        })
+    }
+
+    /// The per-step advantages (summed over the critic's outputs), the returns
+    /// R = A + V_old ([B, c]) and V_old ([B, c]).
+    fn advantages(&self, batch: &Batch) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+        let (b, c) = (batch.len(), self.c);
+        let (rows, k) = update_rows(
+            batch,
+            self.bootstrap_timeout,
+            self.layout.obs_dim,
+            &self.dev,
+        )?;
+        let v_all = self.critic.forward(&rows)?.detach(); // [B + T + k, c]
+        let values = v_all.narrow(0, 0, b)?.flatten_all()?.to_vec1::<f32>()?;
+        let bootstrap = v_all
+            .narrow(0, b, batch.n_traj)?
+            .flatten_all()?
+            .to_vec1::<f32>()?;
+        let ends = timeout_ends(batch, &v_all, k, c)?;
+        let rewards = if c == 1 {
+            batch.scalar_reward()
+        } else {
+            batch.vector_reward.clone()
+        };
+        let adv = gae(
+            &rewards,
+            &values,
+            &batch.done,
+            &bootstrap,
+            ends.as_deref(),
+            batch.n_steps,
+            c,
+            self.gamma,
+            self.cfg.gae_lambda as f32,
+        );
+        let returns: Vec<f32> = adv.iter().zip(&values).map(|(a, v)| a + v).collect();
+        let step_adv = adv.chunks_exact(c).map(|a| a.iter().sum()).collect();
+        Ok((step_adv, returns, values))
+    }
+
+    /// log π_old(a|o) of every step, from the (μ, log σ) the actor recorded.
+    fn old_log_probs(&self, batch: &Batch) -> Result<Vec<f32>> {
+        let (b, l) = (batch.len(), &self.layout);
+        let (m, s) = (l.mu_dim(), l.log_std_dim());
+        if batch.payload.len() != b * (m + s) {
+            return Err(CoreError::Data(format!(
+                "PPO needs the Gaussian behaviour policy's payload (μ then log σ, {} values \
+                 a step); the batch has {} values for {b} steps",
+                m + s,
+                batch.payload.len()
+            )));
+        }
+        let payload = Tensor::from_slice(&batch.payload, (b, m + s), &self.dev)?;
+        let actions = Tensor::from_slice(&batch.actions, (b, l.action_dim()), &self.dev)?;
+        let logp = gaussian_log_prob(
+            l,
+            &payload.narrow(1, 0, m)?,
+            &payload.narrow(1, m, s)?,
+            &actions,
+        )?;
+        Ok(logp.to_vec1::<f32>()?)
+    }
+
+    /// One minibatch's optimiser step; its losses are checked before the step.
+    fn step(&mut self, mb: &Minibatch, totals: &mut Totals) -> Result<()> {
+        let out = self.agent.forward(&mb.obs)?;
+        let logp = gaussian_log_prob(&self.layout, &out.mu, &out.log_std, &mb.actions)?;
+        let log_ratio = (logp - &mb.old_logp)?;
+        let ratio = log_ratio.exp()?;
+        let eps = self.cfg.clip;
+        let unclipped = (&ratio * &mb.advantage)?;
+        let clipped = (ratio.clamp(1.0 - eps, 1.0 + eps)? * &mb.advantage)?;
+        let policy_loss = unclipped.minimum(&clipped)?.mean_all()?.neg()?;
+        let v = self.critic.forward(&mb.obs)?;
+        let err = (&v - &mb.returns)?.sqr()?;
+        let err = match self.cfg.value_clip {
+            Some(vc) => {
+                let moved = (&v - &mb.old_value)?.clamp(-vc, vc)?;
+                let clipped_err = ((&mb.old_value + moved)? - &mb.returns)?.sqr()?;
+                err.maximum(&clipped_err)?
+            }
+            None => err,
+        };
+        let value_loss = err.mean_all()?;
+        let entropy = self.entropy(&out.mu, &out.log_std)?;
+        let loss = ((&policy_loss + (&value_loss * self.value_coef)?)?
+            - (&entropy * self.cfg.entropy_coef)?)?;
+        let pl = check_finite("policy_loss", policy_loss.to_scalar::<f32>()?)?;
+        let vl = check_finite("value_loss", value_loss.to_scalar::<f32>()?)?;
+        check_finite("loss", loss.to_scalar::<f32>()?)?;
+        let grads = loss.backward()?;
+        totals.grad_norm += self.opt.step(&grads)?;
+        // Diagnostics (cleanrl's): KL(π_old‖π) ≈ mean((ρ − 1) − log ρ), and the share of
+        // steps whose ratio the clip bounds.
+        let kl = ((&ratio - 1.0)? - &log_ratio)?.mean_all()?;
+        let outside = (ratio - 1.0)?
+            .abs()?
+            .gt(eps)?
+            .to_dtype(candle_core::DType::F32)?;
+        totals.policy_loss += pl as f64;
+        totals.value_loss += vl as f64;
+        totals.entropy += entropy.to_scalar::<f32>()? as f64;
+        totals.approx_kl += kl.to_scalar::<f32>()? as f64;
+        totals.clip_fraction += outside.mean_all()?.to_scalar::<f32>()? as f64;
+        totals.steps += 1;
+        Ok(())
+    }
+
+    /// The mean entropy of the policy over rows: Σ_c (log σ_c + ½·ln(2πe)) for the
+    /// continuous dims, plus the categorical choice's −Σ p·log p.
+    fn entropy(&self, mu: &Tensor, log_std: &Tensor) -> Result<Tensor> {
+        let half_log_2pi_e = 0.5 * (1.0 + (2.0 * std::f64::consts::PI).ln());
+        let c = self.layout.continuous;
+        let mut h = (log_std.sum(1)? + c as f64 * half_log_2pi_e)?;
+        if self.layout.choices > 0 {
+            let logits = mu.narrow(1, c, self.layout.choices)?;
+            let log_p = candle_nn::ops::log_softmax(&logits, candle_core::D::Minus1)?;
+            h = (h - (log_p.exp()? * log_p)?.sum(1)?)?;
+        }
+        Ok(h.mean_all()?)
+    }
+
+    /// The minibatch of steps `idx`.
+    fn minibatch(&self, idx: &[usize], batch: &Batch, host: &Host) -> Result<Minibatch> {
+        let (o, a, c) = (self.layout.obs_dim, self.layout.action_dim(), self.c);
+        let rows = |data: &[f32], w: usize| -> Vec<f32> {
+            idx.iter()
+                .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
+                .collect()
+        };
+        let n = idx.len();
+        let mut adv = rows(&host.advantage, 1);
+        if self.cfg.adv_norm {
+            normalize_advantages(&mut adv, 1, false);
+        }
+        let t = |v: Vec<f32>, w: usize| Tensor::from_vec(v, (n, w), &self.dev);
+        Ok(Minibatch {
+            obs: t(rows(&batch.obs, o), o)?,
+            actions: t(rows(&batch.actions, a), a)?,
+            old_logp: Tensor::from_vec(rows(&host.old_logp, 1), n, &self.dev)?,
+            advantage: Tensor::from_vec(adv, n, &self.dev)?,
+            returns: t(rows(&host.returns, c), c)?,
+            old_value: t(rows(&host.values, c), c)?,
+        })
+    }
+
+    /// The update's body; on an error the caller puts the state back.
+    fn epochs(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let b = batch.len();
+        let (advantage, returns, values) = self.advantages(batch)?;
+        let host = Host {
+            old_logp: self.old_log_probs(batch)?,
+            explained_variance: explained_variance(&returns, &values),
+            advantage,
+            returns,
+            values,
+        };
+        let m = self.cfg.minibatches.min(b);
+        let mut order: Vec<usize> = (0..b).collect();
+        let mut totals = Totals::default();
+        for _ in 0..self.cfg.epochs {
+            order.shuffle(&mut self.rng);
+            for j in 0..m {
+                // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
+                let idx = &order[j * b / m..(j + 1) * b / m];
+                let mb = self.minibatch(idx, batch, &host)?;
+                self.step(&mb, &mut totals)?;
+            }
+        }
+        let obs = Tensor::from_slice(&batch.obs, (b, self.layout.obs_dim), &self.dev)?;
+        let out = self.agent.forward(&obs)?;
+        let (mu_abs_max, log_std_mean) = policy_diagnostics(&out.mu, &out.log_std)?;
+        let n = totals.steps.max(1) as f64;
+        Ok(UpdateStats {
+            values: vec![
+                ("policy_loss", (totals.policy_loss / n) as f32),
+                ("value_loss", (totals.value_loss / n) as f32),
+                ("entropy", (totals.entropy / n) as f32),
+                ("approx_kl", (totals.approx_kl / n) as f32),
+                ("clip_fraction", (totals.clip_fraction / n) as f32),
+                ("explained_variance", host.explained_variance),
+                ("mu_abs_max", mu_abs_max),
+                ("log_std_mean", log_std_mean),
+                ("grad_norm", (totals.grad_norm / n) as f32),
+            ],
+            per_dim: Vec::new(),
+        })
+    }
+}
+
+/// The batch's per-step numbers on the host.
+struct Host {
+    /// [B]: log π_old(a|o).
+    old_logp: Vec<f32>,
+    /// [B]: advantage (summed over the critic's outputs).
+    advantage: Vec<f32>,
+    /// [B, c]: R = A + V_old.
+    returns: Vec<f32>,
+    /// [B, c]: V_old.
+    values: Vec<f32>,
+    /// 1 − Var(R − V)/Var(R) over every entry.
+    explained_variance: f32,
+}
+
+/// 1 − Var(R − V)/Var(R): how much of the returns' spread the critic explains (1 all,
+/// 0 none, below 0 worse than their mean); 0 where the returns do not vary.
+fn explained_variance(returns: &[f32], values: &[f32]) -> f32 {
+    let var = |x: &mut dyn Iterator<Item = f64>| {
+        let v: Vec<f64> = x.collect();
+        let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+        v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len().max(1) as f64
+    };
+    let var_r = var(&mut returns.iter().map(|&r| r as f64));
+    if var_r == 0.0 {
+        return 0.0;
+    }
+    let var_e = var(&mut returns.iter().zip(values).map(|(&r, &v)| (r - v) as f64));
+    (1.0 - var_e / var_r) as f32
+}
+
+impl Algorithm for Ppo {
+    fn stat_names(&self) -> &'static [&'static str] {
+        STATS
+    }
+
+    /// Several optimiser steps: a non-finite loss in a later one puts back the
+    /// weights, optimiser slots, step count and shuffle stream of the update's start.
+    fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let before = self.save_state()?;
+        let result = self.epochs(batch);
+        if result.is_err() {
+            let get = |name: &str| {
+                before
+                    .tensors
+                    .iter()
+                    .find(|(n, _)| n == name)
+                    .map(|(_, t)| t.clone())
+            };
+            self.restore_state(&get, &before.numbers)?;
+        }
+        result
+    }
+
+    fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
+        checkpoint::to_named_all(&self.agent.params().tensors()?)
+    }
+
+    fn optimizer_steps(&self) -> u64 {
+        self.opt.steps()
+    }
+
+    fn save_state(&self) -> Result<super::AlgoState> {
+        let nets = [self.agent.params(), self.critic.params()];
+        super::nets_state(&nets, &self.opt, Some(&self.rng))
+    }
+
+    fn restore_state(
+        &mut self,
+        get: &dyn Fn(&str) -> Option<Tensor>,
+        numbers: &std::collections::BTreeMap<String, u128>,
+    ) -> Result<()> {
+        let nets = [self.agent.params(), self.critic.params()];
+        super::restore_nets(&nets, &mut self.opt, Some(&mut self.rng), get, numbers)
+    }
+}
+
+#[cfg(test)]
+mod tests;

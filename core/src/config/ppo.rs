@@ -1,0 +1,85 @@
+//! PPO's settings (`[ppo]`; docs/ALGORITHM.md §15). The defaults are Stable-Baselines3's
+//! (clip 0.2, GAE λ 0.95, 10 epochs, minibatches of 64 of a 2,048-step batch, no value
+//! clipping, no entropy bonus, advantages normalised per minibatch).
+
+use super::zero_is_none;
+use crate::{CoreError, Result};
+use serde::{Deserialize, Serialize};
+
+/// PPO's constants.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PpoConfig {
+    /// Passes over each batch.
+    pub epochs: usize,
+    /// Minibatches per pass (each a random share of the batch, drawn anew per pass).
+    pub minibatches: usize,
+    /// ε of the clipped surrogate: the ratio π/π_old counts within [1 − ε, 1 + ε].
+    pub clip: f64,
+    /// λ of GAE(λ) (1: the n-step return inside the rollout, as A2C).
+    pub gae_lambda: f64,
+    /// Clip the value's move from its value at the batch's start to ±this (`None`,
+    /// written 0: unclipped).
+    #[serde(with = "zero_is_none")]
+    pub value_clip: Option<f64>,
+    /// Weight of the policy's entropy bonus.
+    pub entropy_coef: f64,
+    /// Centre each minibatch's advantages and divide them by their standard deviation.
+    pub adv_norm: bool,
+    /// A vector critic V(o) ∈ R^d on the vector reward, GAE per coordinate, and the
+    /// step's advantage the sum over coordinates (instead of one critic on the summed
+    /// reward).
+    pub vector: bool,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        Self {
+            epochs: 10,
+            minibatches: 32,
+            clip: 0.2,
+            gae_lambda: 0.95,
+            value_clip: None,
+            entropy_coef: 0.0,
+            adv_norm: true,
+            vector: false,
+        }
+    }
+}
+
+impl PpoConfig {
+    /// Checks every field; the message names it.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &str, why: String| Err(CoreError::Config(format!("ppo.{field}: {why}")));
+        if !(1..=1000).contains(&self.epochs) {
+            return bad("epochs", format!("{} is not in 1..=1000", self.epochs));
+        }
+        if !(1..=65_536).contains(&self.minibatches) {
+            return bad(
+                "minibatches",
+                format!("{} is not in 1..=65536", self.minibatches),
+            );
+        }
+        if !(self.clip.is_finite() && self.clip > 0.0 && self.clip < 1.0) {
+            return bad("clip", format!("{} is not in (0, 1)", self.clip));
+        }
+        if !(0.0..=1.0).contains(&self.gae_lambda) {
+            return bad(
+                "gae_lambda",
+                format!("{} is not in [0, 1]", self.gae_lambda),
+            );
+        }
+        if let Some(v) = self.value_clip {
+            if !(v.is_finite() && v > 0.0) {
+                return bad("value_clip", format!("{v} must be > 0 (0: unclipped)"));
+            }
+        }
+        if !(self.entropy_coef.is_finite() && self.entropy_coef >= 0.0) {
+            return bad(
+                "entropy_coef",
+                format!("{} must be finite and >= 0", self.entropy_coef),
+            );
+        }
+        Ok(())
+    }
+}
