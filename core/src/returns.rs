@@ -1,7 +1,7 @@
 //! n-step returns inside a rollout (GAE with λ = 1; docs/ALGORITHM.md §6), per component:
 //! R_n = bootstrap, R_t = r_t + γ·(1 − done_t)·R_{t+1}, or, where the episode ended at
 //! t by its step limit and the run bootstraps there, R_t = r_t + γ·V(o_final); and
-//! GAE(λ) advantages for PPO.
+//! GAE(λ) advantages for PPO, and V-trace targets for async off-policy correction.
 
 /// Returns of `n_traj` trajectories of `n_steps` steps with `c` reward components.
 ///
@@ -90,6 +90,64 @@ pub fn gae(
         }
     }
     out
+}
+
+/// V-trace (Espeholt et al. 2018, IMPALA; docs/ALGORITHM.md §16) of `n_traj` trajectories
+/// acted by a behaviour policy μ, for a learner whose policy is π, each of the `c`
+/// reward components on its own with one ratio per step: `rho` and `cs` hold the clipped
+/// ratios ρ_t = min(ρ̄, π/μ) and c_t = min(c̄, π/μ) ([n_traj, n_steps]). Returns the
+/// critic targets v_t and the policy-gradient advantages ρ_t·(r_t + γ·v_next − V(o_t)),
+/// each with the layout of `rewards`:
+///   v_t − V(o_t) = ρ_t·δ_t + γ·c_t·(1 − done_t)·(v_(t+1) − V(o_(t+1))),
+///   δ_t = r_t + γ·V_next − V(o_t),
+/// where V_next and v_next are V(o_(t+1)) and v_(t+1) inside an episode, the trajectory's
+/// `bootstrap` after its last step, and at a step that ended an episode the value in
+/// `ends` (or 0), as in [`gae`]. With every ratio 1, v_t is [`n_step_returns`]' R_t and
+/// the advantage R_t − V(o_t).
+#[allow(clippy::too_many_arguments)]
+pub fn vtrace(
+    rewards: &[f32],
+    values: &[f32],
+    dones: &[bool],
+    bootstrap: &[f32],
+    ends: Option<&[f32]>,
+    rho: &[f32],
+    cs: &[f32],
+    n_steps: usize,
+    c: usize,
+    gamma: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    let n_traj = dones.len() / n_steps;
+    debug_assert_eq!(rewards.len(), n_traj * n_steps * c);
+    debug_assert_eq!(values.len(), rewards.len());
+    debug_assert_eq!(rho.len(), dones.len());
+    debug_assert_eq!(cs.len(), dones.len());
+    let mut targets = vec![0.0f32; rewards.len()];
+    let mut advantages = vec![0.0f32; rewards.len()];
+    for e in 0..n_traj {
+        // v_(t+1) − V(o_(t+1)) of the step after the current one.
+        let mut acc = vec![0.0f32; c];
+        for t in (0..n_steps).rev() {
+            let i = e * n_steps + t;
+            let row = i * c;
+            let done = dones[i];
+            for j in 0..c {
+                let (next_v, next_target) = match (done, ends) {
+                    (false, _) if t + 1 == n_steps => (bootstrap[e * c + j], bootstrap[e * c + j]),
+                    (false, _) => (values[row + c + j], targets[row + c + j]),
+                    (true, Some(v)) => (v[row + j], v[row + j]),
+                    (true, None) => (0.0, 0.0),
+                };
+                let delta = rewards[row + j] + gamma * next_v - values[row + j];
+                let carry = if done { 0.0 } else { gamma * cs[i] * acc[j] };
+                acc[j] = rho[i] * delta + carry;
+                targets[row + j] = values[row + j] + acc[j];
+                advantages[row + j] =
+                    rho[i] * (rewards[row + j] + gamma * next_target - values[row + j]);
+            }
+        }
+    }
+    (targets, advantages)
 }
 
 /// Normalises advantages over a batch (docs/ALGORITHM.md §6): `adv` is [B, d]
@@ -202,6 +260,60 @@ mod tests {
         // Without ends every episode end is terminal: A1 = r1 − V1 = (1, 2).
         let a = gae(&rewards, &values, &dones, &[10., 20.], None, 3, 2, 0.5, 0.5);
         assert_eq!(&a[2..4], &[1., 2.]);
+    }
+
+    #[test]
+    fn vtrace_by_hand_on_a_three_step_vector_rollout() {
+        // One trajectory, 3 steps, 2 components, γ = 0.5, no episode end; bootstrap
+        // (10, 20); V(o_t) = (1, 1), (2, 2), (3, 3); rewards (1, 2), (3, 4), (5, 6).
+        // Ratios π/μ = 2, 0.5, 1.5 with ρ̄ = 1, c̄ = 1: ρ = c = (1, 0.5, 1).
+        //   δ2 = r2 + 0.5·(10, 20) − 3 = (7, 13);          v2 − V2 = 1·δ2 = (7, 13)
+        //   δ1 = r1 + 0.5·V2 − 2 = (2.5, 3.5);  v1 − V1 = 0.5·δ1 + 0.5·0.5·(7, 13)
+        //                                            = (1.25 + 1.75, 1.75 + 3.25) = (3, 5)
+        //   δ0 = r0 + 0.5·V1 − 1 = (1, 2);      v0 − V0 = 1·δ0 + 0.5·1·(3, 5) = (2.5, 4.5)
+        //   v = (3.5, 5.5), (5, 7), (10, 16)
+        //   advantages ρ_t·(r_t + γ·v_(t+1) − V_t):
+        //     t = 0: 1·(1 + 2.5 − 1, 2 + 3.5 − 1) = (2.5, 4.5)
+        //     t = 1: 0.5·(3 + 5 − 2, 4 + 8 − 2) = (3, 5)
+        //     t = 2: 1·(5 + 5 − 3, 6 + 10 − 3) = (7, 13)
+        let rewards = [1., 2., 3., 4., 5., 6.];
+        let values = [1., 1., 2., 2., 3., 3.];
+        let dones = [false; 3];
+        let (rho, cs) = ([1., 0.5, 1.], [1., 0.5, 1.]);
+        let (v, a) = vtrace(
+            &rewards,
+            &values,
+            &dones,
+            &[10., 20.],
+            None,
+            &rho,
+            &cs,
+            3,
+            2,
+            0.5,
+        );
+        assert_eq!(v, vec![3.5, 5.5, 5., 7., 10., 16.]);
+        assert_eq!(a, vec![2.5, 4.5, 3., 5., 7., 13.]);
+        // Every ratio 1: the n-step returns and R − V, a timeout bootstrapped included.
+        let ends = [0., 0., 4., 8., 0., 0.];
+        let dones = [false, true, false];
+        let ones = [1.0f32; 3];
+        let (v, a) = vtrace(
+            &rewards,
+            &values,
+            &dones,
+            &[10., 20.],
+            Some(&ends),
+            &ones,
+            &ones,
+            3,
+            2,
+            0.5,
+        );
+        let r = n_step_returns(&rewards, &dones, &[10., 20.], Some(&ends), 3, 2, 0.5);
+        assert_eq!(v, r);
+        let adv: Vec<f32> = r.iter().zip(values).map(|(r, v)| r - v).collect();
+        assert_eq!(a, adv);
     }
 
     #[test]

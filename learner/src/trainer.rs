@@ -159,7 +159,7 @@ impl Trainer {
             mut window,
         } = opts.start.clone();
         let resumed = c != Counters::default();
-        let mut csv = MetricsCsv::create(&metrics_path, self.algo.stat_names(), resumed)
+        let mut csv = MetricsCsv::create(&metrics_path, &self.algo.stat_names(), resumed)
             .map_err(|e| io("creating metrics.csv", e))?;
         let mut per_dim =
             crate::metrics::PerDimCsv::new(&run_dir.join("per_dim.csv"), resumed, PER_DIM_EVERY);
@@ -262,7 +262,7 @@ impl Trainer {
                 per_dim
                     .add(row.steps, row.updates, &stats.per_dim)
                     .map_err(|e| io("writing per_dim.csv", e))?;
-                let scalars = crate::tensorboard::scalars(&row, self.algo.stat_names(), &episodes);
+                let scalars = crate::tensorboard::scalars(&row, &self.algo.stat_names(), &episodes);
                 events
                     .write(row.steps, &scalars)
                     .map_err(|e| io("writing the TensorBoard events", e))?;

@@ -338,6 +338,80 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// Async with V-trace and a deliberately slow actor: two actors train A2C; a third
+/// acts on version 0 and hands its rollout in at version 5 (within max_lag 8). The
+/// update that takes it reports a lag of 5 and ratios π/μ away from 1; every update of
+/// current rollouts alone reports ratios of 1 (the actors' payload is the learner's
+/// own policy at that version, to rounding).
+#[test]
+fn vtrace_weighs_a_slow_actors_rollout_by_its_ratios() {
+    let mut config = RunConfig::paper(
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        Algo::A2c,
+        200 * 2 * 8,
+    );
+    config.actors = 2;
+    config.mode = saver_core::config::Mode::Async;
+    config.max_lag = Some(8);
+    config.vtrace = true;
+    // A rate at which 5 updates move the policy visibly.
+    config.lr = 3e-3;
+    config.validate().unwrap();
+    let dir = temp_dir("async-vtrace");
+    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
+    let hub = learner.hub.clone();
+    let mut slow = saver_learner::InProcessLink::new(hub.clone());
+    let reg = |i: u64| Registration {
+        name: format!("v{i}"),
+        session: i,
+        n_envs: 1,
+    };
+    let assignment = slow.register(&reg(9)).unwrap();
+    let v0 = slow.weights(0).unwrap();
+    let mut policy = saver_core::nets::Policy::new(v0, config.env.layout(), config.head).unwrap();
+    let old = saver_actor::Actor::new(&assignment, 1)
+        .unwrap()
+        .collect(&mut policy);
+    let actors: Vec<_> = (0..2)
+        .map(|i| {
+            let mut link = saver_learner::InProcessLink::new(hub.clone());
+            let r = reg(i);
+            std::thread::spawn(move || run_actor(&mut link, &r, &AtomicBool::new(false)).unwrap())
+        })
+        .collect();
+    hub.wait_weights(5).unwrap();
+    slow.push(old).expect("the learner is still training");
+    let (_, o) = follow(learner, &config, false, |_| {}).unwrap();
+    for a in actors {
+        a.join().unwrap();
+    }
+    let csv = std::fs::read_to_string(&o.metrics).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |name| header.iter().position(|h| *h == name).unwrap();
+    let (lag, mean, max) = (
+        col("lag_max"),
+        col("vtrace_ratio_mean"),
+        col("vtrace_ratio_max"),
+    );
+    let mut slow_rows = 0;
+    for line in csv.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let (l, m, x): (u64, f32, f32) = (
+            f[lag].parse().unwrap(),
+            f[mean].parse().unwrap(),
+            f[max].parse().unwrap(),
+        );
+        if l >= 5 {
+            slow_rows += 1;
+            assert!((x - 1.0).abs() > 0.01 || (m - 1.0).abs() > 0.01, "{line}");
+        } else if l == 0 {
+            assert!((m - 1.0).abs() < 1e-3 && (x - 1.0).abs() < 1e-2, "{line}");
+        }
+    }
+    assert!(slow_rows >= 1, "the slow rollout was not used");
+    std::fs::remove_dir_all(dir).ok();
+}
+
 #[test]
 fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
     use saver_pcpn_trainer::service::{fetch, serve as serve_store, PcpnService};

@@ -36,6 +36,8 @@ pub struct A2c {
     value_coef: f64,
     /// Bootstrap at the step limit.
     bootstrap_timeout: bool,
+    /// Off-policy correction, when the run asks for it.
+    vtrace: Option<super::Vtrace>,
     /// Device of the tensors.
     dev: Device,
 }
@@ -68,14 +70,19 @@ impl A2c {
             gamma: config.gamma as f32,
             value_coef: config.value_coef,
             bootstrap_timeout: config.bootstrap_timeout,
+            vtrace: super::Vtrace::of(config),
             dev: dev.clone(),
         })
     }
 }
 
 impl Algorithm for A2c {
-    fn stat_names(&self) -> &'static [&'static str] {
-        STATS
+    fn stat_names(&self) -> Vec<&'static str> {
+        let mut names = STATS.to_vec();
+        if self.vtrace.is_some() {
+            names.extend(super::VTRACE_STATS);
+        }
+        names
     }
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
@@ -84,13 +91,39 @@ impl Algorithm for A2c {
         let out = self.agent.forward(&rows)?;
         let value_all = out.value.expect("A2C agent has a value head");
         let value = value_all.narrow(0, 0, b)?; // [B]
-        let returns = batch_returns(batch, &batch.scalar_reward(), &value_all, k, 1, self.gamma)?;
-        let returns = Tensor::from_vec(returns, b, &self.dev)?;
-        let advantage = (&returns - &value)?.detach();
         let mu = out.mu.narrow(0, 0, b)?;
         let log_std = out.log_std.narrow(0, 0, b)?;
         let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
         let logp = gaussian_log_prob(&self.layout, &mu, &log_std, &actions)?;
+        let rewards = batch.scalar_reward();
+        let mut extra = Vec::new();
+        let (returns, advantage) = match self.vtrace {
+            None => {
+                let returns = batch_returns(batch, &rewards, &value_all, k, 1, self.gamma)?;
+                let returns = Tensor::from_vec(returns, b, &self.dev)?;
+                let advantage = (&returns - &value)?.detach();
+                (returns, advantage)
+            }
+            Some(vt) => {
+                let log_pi = logp.detach().to_vec1::<f32>()?;
+                let values = value_all.detach().unsqueeze(1)?;
+                let corrected = vt.targets(
+                    batch,
+                    &self.layout,
+                    &rewards,
+                    &values,
+                    k,
+                    1,
+                    self.gamma,
+                    &log_pi,
+                )?;
+                extra = corrected.stats;
+                (
+                    Tensor::from_vec(corrected.targets, b, &self.dev)?,
+                    Tensor::from_vec(corrected.advantages, b, &self.dev)?,
+                )
+            }
+        };
         let policy_loss = (logp * advantage)?.mean_all()?.neg()?;
         let value_loss = ((value - returns)?.sqr()?.mean_all()? * self.value_coef)?;
         let loss = (&policy_loss + &value_loss)?;
@@ -100,14 +133,16 @@ impl Algorithm for A2c {
         let grads = loss.backward()?;
         let grad_norm = self.opt.step(&grads)? as f32;
         let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
+        let mut values = vec![
+            ("policy_loss", policy_loss),
+            ("value_loss", value_loss_v),
+            ("mu_abs_max", mu_abs_max),
+            ("log_std_mean", log_std_mean),
+            ("grad_norm", grad_norm),
+        ];
+        values.extend(extra);
         Ok(UpdateStats {
-            values: vec![
-                ("policy_loss", policy_loss),
-                ("value_loss", value_loss_v),
-                ("mu_abs_max", mu_abs_max),
-                ("log_std_mean", log_std_mean),
-                ("grad_norm", grad_norm),
-            ],
+            values,
             per_dim: Vec::new(),
         })
     }

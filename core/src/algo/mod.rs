@@ -12,6 +12,7 @@ mod qrrl;
 mod saver;
 mod saver_grad;
 pub mod saver_signal;
+mod vtrace;
 
 pub use a2c::A2c;
 pub use fused::{threads_for, Loss};
@@ -22,6 +23,7 @@ pub use saver::{tau_tensors, GradPath, Saver};
 pub use saver_grad::{
     policy_grads, saver_actor_losses, weighted_quantile_losses, InputGrad, PcpnGrad, SaverLosses,
 };
+pub(crate) use vtrace::{Vtrace, VTRACE_STATS};
 
 use crate::acting::PolicyFamily;
 use crate::config::{Algo, RunConfig};
@@ -58,7 +60,7 @@ impl UpdateStats {
 /// A learning algorithm: updates from batches and exposes its state.
 pub trait Algorithm: Send {
     /// Names of the values in [`UpdateStats`] (CSV columns).
-    fn stat_names(&self) -> &'static [&'static str];
+    fn stat_names(&self) -> Vec<&'static str>;
     /// One update from a batch. [`CoreError::NonFinite`] when the batch makes a loss
     /// or gradient non-finite: then nothing changed (weights, optimiser slots and step
     /// count are as before) and the caller may go on with the next batch.
@@ -285,6 +287,34 @@ pub(crate) fn batch_returns(
         c,
         gamma,
     ))
+}
+
+/// log μ(a|o) of every step under the Gaussian behaviour policy that acted, from the
+/// (μ, log σ) its actor recorded in the payload (PPO's π_old, V-trace's μ).
+pub(crate) fn behaviour_log_probs(
+    layout: &crate::env::EnvLayout,
+    batch: &Batch,
+    dev: &Device,
+) -> Result<Vec<f32>> {
+    let b = batch.len();
+    let (m, s) = (layout.mu_dim(), layout.log_std_dim());
+    if batch.payload.len() != b * (m + s) {
+        return Err(CoreError::Data(format!(
+            "the Gaussian behaviour policy's payload is μ then log σ, {} values a step; the \
+             batch has {} values for {b} steps",
+            m + s,
+            batch.payload.len()
+        )));
+    }
+    let payload = Tensor::from_slice(&batch.payload, (b, m + s), dev)?;
+    let actions = Tensor::from_slice(&batch.actions, (b, layout.action_dim()), dev)?;
+    let logp = crate::nets::gaussian_log_prob(
+        layout,
+        &payload.narrow(1, 0, m)?,
+        &payload.narrow(1, m, s)?,
+        &actions,
+    )?;
+    Ok(logp.to_vec1::<f32>()?)
 }
 
 /// A non-finite loss is [`CoreError::NonFinite`]: the update is skipped before it

@@ -18,7 +18,7 @@ use crate::optim::Optimizer;
 use crate::returns::{gae, normalize_advantages};
 use crate::rng::{rng_for, streams, SaverRng};
 use crate::rollout::Batch;
-use crate::{checkpoint, CoreError, Result};
+use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
 use rand::seq::SliceRandom;
 use saver_proto::NamedTensor;
@@ -166,29 +166,6 @@ impl Ppo {
         Ok((step_adv, returns, values))
     }
 
-    /// log π_old(a|o) of every step, from the (μ, log σ) the actor recorded.
-    fn old_log_probs(&self, batch: &Batch) -> Result<Vec<f32>> {
-        let (b, l) = (batch.len(), &self.layout);
-        let (m, s) = (l.mu_dim(), l.log_std_dim());
-        if batch.payload.len() != b * (m + s) {
-            return Err(CoreError::Data(format!(
-                "PPO needs the Gaussian behaviour policy's payload (μ then log σ, {} values \
-                 a step); the batch has {} values for {b} steps",
-                m + s,
-                batch.payload.len()
-            )));
-        }
-        let payload = Tensor::from_slice(&batch.payload, (b, m + s), &self.dev)?;
-        let actions = Tensor::from_slice(&batch.actions, (b, l.action_dim()), &self.dev)?;
-        let logp = gaussian_log_prob(
-            l,
-            &payload.narrow(1, 0, m)?,
-            &payload.narrow(1, m, s)?,
-            &actions,
-        )?;
-        Ok(logp.to_vec1::<f32>()?)
-    }
-
     /// One minibatch's optimiser step; its losses are checked before the step.
     fn step(&mut self, mb: &Minibatch, totals: &mut Totals) -> Result<()> {
         let out = self.agent.forward(&mb.obs)?;
@@ -277,7 +254,7 @@ impl Ppo {
         let b = batch.len();
         let (advantage, returns, values) = self.advantages(batch)?;
         let host = Host {
-            old_logp: self.old_log_probs(batch)?,
+            old_logp: super::behaviour_log_probs(&self.layout, batch, &self.dev)?,
             explained_variance: explained_variance(&returns, &values),
             advantage,
             returns,
@@ -347,8 +324,8 @@ fn explained_variance(returns: &[f32], values: &[f32]) -> f32 {
 }
 
 impl Algorithm for Ppo {
-    fn stat_names(&self) -> &'static [&'static str] {
-        STATS
+    fn stat_names(&self) -> Vec<&'static str> {
+        STATS.to_vec()
     }
 
     /// Several optimiser steps: a non-finite loss in a later one puts back the

@@ -153,8 +153,8 @@ pub fn qrrl_actor_losses(
 }
 
 impl Algorithm for Qrrl {
-    fn stat_names(&self) -> &'static [&'static str] {
-        STATS
+    fn stat_names(&self) -> Vec<&'static str> {
+        STATS.to_vec()
     }
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {

@@ -14,7 +14,7 @@ use super::{
 use crate::config::{DeltaTarget, RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
-use crate::nets::{Agent, Critic, Pcpn};
+use crate::nets::{gaussian_log_prob, Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
@@ -69,6 +69,8 @@ pub struct Saver {
     ranks: Vec<(&'static str, Vec<f32>)>,
     /// The PCPN's own training on the policy's steps (`saver.pcpn_tune_lr` > 0).
     tuner: Option<PcpnTuner>,
+    /// Off-policy correction, when the run asks for it.
+    vtrace: Option<super::Vtrace>,
 }
 
 /// How the agent's gradient through the PCPN is computed.
@@ -162,6 +164,7 @@ impl Saver {
             dev: dev.clone(),
             ranks: Vec::new(),
             tuner,
+            vtrace: super::Vtrace::of(config),
         })
     }
 
@@ -177,12 +180,16 @@ impl Saver {
 }
 
 impl Algorithm for Saver {
-    fn stat_names(&self) -> &'static [&'static str] {
-        if self.tuner.is_some() {
-            STATS_TUNED
+    fn stat_names(&self) -> Vec<&'static str> {
+        let mut names = if self.tuner.is_some() {
+            STATS_TUNED.to_vec()
         } else {
-            STATS
+            STATS.to_vec()
+        };
+        if self.vtrace.is_some() {
+            names.extend(super::VTRACE_STATS);
         }
+        names
     }
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
@@ -194,11 +201,36 @@ impl Algorithm for Saver {
         let x_all = Tensor::cat(&[&obs_all, &out.mu, &out.log_std], 1)?.detach();
         let v_all = self.critic.forward(&x_all)?; // [B+T, d]
         let value = v_all.narrow(0, 0, b)?;
-        let returns_host =
-            batch_returns(batch, &batch.vector_reward, &v_all, n_ends, d, self.gamma)?;
-        let returns = Tensor::from_slice(&returns_host, (b, d), &self.dev)?;
         // Â on the host (what the fast path and the statistics read) and as a tensor.
-        let mut adv_host: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?;
+        let mut vtrace_stats = Vec::new();
+        let (returns_host, mut adv_host) = match self.vtrace {
+            None => {
+                let r = batch_returns(batch, &batch.vector_reward, &v_all, n_ends, d, self.gamma)?;
+                let returns = Tensor::from_slice(&r, (b, d), &self.dev)?;
+                let adv: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?;
+                (r, adv)
+            }
+            Some(vt) => {
+                let (mu, log_std) = (out.mu.narrow(0, 0, b)?, out.log_std.narrow(0, 0, b)?);
+                let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
+                let log_pi = gaussian_log_prob(&self.layout, &mu, &log_std, &actions)?
+                    .detach()
+                    .to_vec1::<f32>()?;
+                let corrected = vt.targets(
+                    batch,
+                    &self.layout,
+                    &batch.vector_reward,
+                    &v_all.detach(),
+                    n_ends,
+                    d,
+                    self.gamma,
+                    &log_pi,
+                )?;
+                vtrace_stats = corrected.stats;
+                (corrected.targets, corrected.advantages)
+            }
+        };
+        let returns = Tensor::from_slice(&returns_host, (b, d), &self.dev)?;
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }
@@ -321,6 +353,7 @@ impl Algorithm for Saver {
             ("grad_norm", grad_norm),
         ];
         values.extend(tune_loss.map(|l| ("pcpn_tune_loss", l)));
+        values.extend(vtrace_stats);
         Ok(UpdateStats { values, per_dim })
     }
 

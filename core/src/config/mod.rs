@@ -77,6 +77,10 @@ pub struct SaverConfig {
     pub pcpn_tune_lr: f64,
 }
 
+fn one() -> f64 {
+    1.0
+}
+
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
 pub const MU_RAW_LIMIT: f64 = 2.0;
 
@@ -124,6 +128,18 @@ pub struct RunConfig {
     pub bootstrap_timeout: bool,
     /// A2C value-loss weight.
     pub value_coef: f64,
+    /// Off-policy correction of rollouts acted by an older policy (async mode): V-trace
+    /// critic targets and ratio-weighted advantages (docs/ALGORITHM.md §16). A2C and
+    /// SAVER; off by default (a config.toml written before it reads as off).
+    #[serde(default)]
+    pub vtrace: bool,
+    /// V-trace's ρ̄: the clip of the ratio π/μ that weighs each step's TD error and
+    /// advantage.
+    #[serde(default = "one")]
+    pub rho_bar: f64,
+    /// V-trace's c̄: the clip of the ratio that carries a later step's correction back.
+    #[serde(default = "one")]
+    pub c_bar: f64,
     /// The environment.
     pub env: EnvSpec,
     /// Bounds of the policy's μ and log σ (the paper: none).
@@ -222,6 +238,9 @@ impl RunConfig {
                 .unwrap_or(1000),
             bootstrap_timeout: false,
             value_coef: 0.5,
+            vtrace: false,
+            rho_bar: 1.0,
+            c_bar: 1.0,
             saver: SaverConfig {
                 quantiles: 32,
                 kappa: None,
@@ -362,6 +381,24 @@ impl RunConfig {
             return bad(
                 "value_coef",
                 format!("{} must be finite and >= 0", self.value_coef),
+            );
+        }
+        for (field, v) in [("rho_bar", self.rho_bar), ("c_bar", self.c_bar)] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(field, format!("{v} must be finite and > 0"));
+            }
+        }
+        if self.vtrace && !matches!(self.algo, Algo::A2c | Algo::Saver) {
+            return bad(
+                "vtrace",
+                format!(
+                    "V-trace corrects A2C and SAVER; {} {}",
+                    self.algo.name(),
+                    match self.algo {
+                        Algo::Ppo => "already weighs each step by π/π_old of the policy that acted",
+                        _ => "acts with a quantile policy, whose actions have no density to take a ratio of",
+                    }
+                ),
             );
         }
         let s = &self.saver;

@@ -220,6 +220,12 @@ pub struct RunSettings {
     pub bootstrap_timeout: Option<bool>,
     #[arg(long, allow_hyphen_values = true, help = help("A2C: weight of the value loss", "value_coef"))]
     pub value_coef: Option<f64>,
+    #[arg(long, help = help("Correct rollouts acted by an older policy (async) with V-trace targets and ratio-weighted advantages (A2C, SAVER)", "vtrace"))]
+    pub vtrace: Option<bool>,
+    #[arg(long, allow_hyphen_values = true, help = help("V-trace: clip ρ̄ of the ratio that weighs each step's TD error and advantage", "rho_bar"))]
+    pub rho_bar: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("V-trace: clip c̄ of the ratio that carries later corrections back", "c_bar"))]
+    pub c_bar: Option<f64>,
     /// The environment.
     #[command(flatten)]
     #[serde(default)]

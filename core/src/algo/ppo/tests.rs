@@ -49,7 +49,7 @@ fn mean_ratio_move(ppo: &Ppo, batch: &Batch) -> f32 {
         .unwrap()
         .to_vec1()
         .unwrap();
-    let old = ppo.old_log_probs(batch).unwrap();
+    let old = crate::algo::behaviour_log_probs(&l, batch, &Device::Cpu).unwrap();
     let sum: f32 = logp
         .iter()
         .zip(&old)
@@ -119,7 +119,7 @@ fn a_non_finite_minibatch_puts_the_whole_update_back() {
     bad.vector_reward[16 * 2] = 3e19;
     let before = ppo.save_state().unwrap();
     let e = ppo.update(&bad).unwrap_err();
-    assert!(matches!(e, CoreError::NonFinite(_)), "{e}");
+    assert!(matches!(e, crate::CoreError::NonFinite(_)), "{e}");
     let after = ppo.save_state().unwrap();
     assert_eq!(values(before.tensors), values(after.tensors));
     assert_eq!(before.numbers, after.numbers);
