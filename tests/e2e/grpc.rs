@@ -91,7 +91,7 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
         20 * 4 * 8,
     );
     // PPO on angle d = 2: its old log-probabilities come from the payload the actors
-    // send; 2 passes of 4 minibatches per update.
+    // send; 2 passes of 4 minibatches of 8 per update.
     let mut ppo = RunConfig::recommended(
         &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::Ppo,
@@ -99,7 +99,7 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
     );
     ppo.rollout = 8;
     ppo.ppo.epochs = 2;
-    ppo.ppo.minibatches = 4;
+    ppo.ppo.minibatch_size = 8;
     for mut config in [saver, a2c, qrrl, ppo] {
         config.actors = 4;
         let pcpn = (config.algo == Algo::Saver)

@@ -1,5 +1,5 @@
 //! PPO (Schulman et al. 2017; docs/ALGORITHM.md §15): per batch, GAE(λ) advantages from a
-//! separate critic, then `epochs` passes of `minibatches` random minibatches, each one
+//! separate critic, then `epochs` passes of random minibatches of `minibatch_size`, each one
 //! optimiser step on
 //!
 //!   L = −mean min(ρ·Â, clip(ρ, 1 − ε, 1 + ε)·Â) + c_v·mean (V − R)² − β·mean H(π),
@@ -111,7 +111,8 @@ impl Ppo {
         let critic = Critic::with_sizes(layout.obs_dim, c, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
-        let per_update = (config.ppo.epochs * config.ppo.minibatches) as u64;
+        let batch = config.batch_transitions() as usize;
+        let per_update = (config.ppo.epochs * config.ppo.minibatches(batch)) as u64;
         let opt = super::run_optimizer(vars, config, per_update)?;
         Ok(Self {
             agent,
@@ -260,7 +261,7 @@ impl Ppo {
             returns,
             values,
         };
-        let m = self.cfg.minibatches.min(b);
+        let m = self.cfg.minibatches(b);
         let mut order: Vec<usize> = (0..b).collect();
         let mut totals = Totals::default();
         for _ in 0..self.cfg.epochs {

@@ -1,6 +1,6 @@
 //! PPO's settings (`[ppo]`; docs/ALGORITHM.md §15). The defaults are Stable-Baselines3's
-//! (clip 0.2, GAE λ 0.95, 10 epochs, minibatches of 64 of a 2,048-step batch, no value
-//! clipping, no entropy bonus, advantages normalised per minibatch).
+//! (clip 0.2, GAE λ 0.95, 10 epochs of minibatches of 64 steps, no value clipping, no
+//! entropy bonus, advantages normalised per minibatch).
 
 use super::zero_is_none;
 use crate::{CoreError, Result};
@@ -12,8 +12,9 @@ use serde::{Deserialize, Serialize};
 pub struct PpoConfig {
     /// Passes over each batch.
     pub epochs: usize,
-    /// Minibatches per pass (each a random share of the batch, drawn anew per pass).
-    pub minibatches: usize,
+    /// Steps per minibatch: each pass cuts the batch, shuffled anew, into
+    /// ⌈B / minibatch_size⌉ minibatches of (nearly) equal size.
+    pub minibatch_size: usize,
     /// ε of the clipped surrogate: the ratio π/π_old counts within [1 − ε, 1 + ε].
     pub clip: f64,
     /// λ of GAE(λ) (1: the n-step return inside the rollout, as A2C).
@@ -36,7 +37,7 @@ impl Default for PpoConfig {
     fn default() -> Self {
         Self {
             epochs: 10,
-            minibatches: 32,
+            minibatch_size: 64,
             clip: 0.2,
             gae_lambda: 0.95,
             value_clip: None,
@@ -48,16 +49,21 @@ impl Default for PpoConfig {
 }
 
 impl PpoConfig {
+    /// Minibatches per pass over a batch of `b` steps.
+    pub fn minibatches(&self, b: usize) -> usize {
+        b.div_ceil(self.minibatch_size).max(1)
+    }
+
     /// Checks every field; the message names it.
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &str, why: String| Err(CoreError::Config(format!("ppo.{field}: {why}")));
         if !(1..=1000).contains(&self.epochs) {
             return bad("epochs", format!("{} is not in 1..=1000", self.epochs));
         }
-        if !(1..=65_536).contains(&self.minibatches) {
+        if !(1..=1 << 20).contains(&self.minibatch_size) {
             return bad(
-                "minibatches",
-                format!("{} is not in 1..=65536", self.minibatches),
+                "minibatch_size",
+                format!("{} is not in 1..=1048576", self.minibatch_size),
             );
         }
         if !(self.clip.is_finite() && self.clip > 0.0 && self.clip < 1.0) {

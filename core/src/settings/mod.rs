@@ -154,8 +154,8 @@ pub struct SaverSettings {
 pub struct PpoSettings {
     #[arg(id = "ppo_epochs", value_name = "N", long = "ppo-epochs", help = help("PPO: passes over each batch", "ppo.epochs"))]
     pub epochs: Option<usize>,
-    #[arg(id = "ppo_minibatches", value_name = "N", long = "ppo-minibatches", help = help("PPO: minibatches per pass", "ppo.minibatches"))]
-    pub minibatches: Option<usize>,
+    #[arg(id = "ppo_minibatch_size", value_name = "N", long = "ppo-minibatch-size", help = help("PPO: steps per minibatch", "ppo.minibatch_size"))]
+    pub minibatch_size: Option<usize>,
     #[arg(id = "ppo_clip", value_name = "EPS", long = "ppo-clip", allow_hyphen_values = true, help = help("PPO: ε of the clipped surrogate", "ppo.clip"))]
     pub clip: Option<f64>,
     #[arg(long, allow_hyphen_values = true, help = help("PPO: λ of GAE(λ)", "ppo.gae_lambda"))]

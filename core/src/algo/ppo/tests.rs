@@ -3,12 +3,12 @@ use crate::algo::tests::random_batch;
 use crate::config::Algo;
 use crate::env::{EnvKind, EnvSpec};
 
-/// PPO on angle d = 2 with `epochs` passes of `minibatches` and clip ε.
-fn config(epochs: usize, minibatches: usize, clip: f64) -> RunConfig {
+/// PPO on angle d = 2 with `epochs` passes of minibatches of `size` and clip ε.
+fn config(epochs: usize, size: usize, clip: f64) -> RunConfig {
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
     let mut c = RunConfig::recommended(&spec, Algo::Ppo, 1);
     c.ppo.epochs = epochs;
-    c.ppo.minibatches = minibatches;
+    c.ppo.minibatch_size = size;
     c.ppo.clip = clip;
     c.lr = 1e-3;
     c.validate().unwrap();
@@ -68,7 +68,7 @@ fn mean_ratio_move(ppo: &Ppo, batch: &Batch) -> f32 {
 fn the_clip_bounds_how_far_an_update_moves_the_policy() {
     let mut moved = Vec::new();
     for clip in [0.9, 0.02] {
-        let mut ppo = Ppo::new(&config(40, 1, clip), &Device::Cpu).unwrap();
+        let mut ppo = Ppo::new(&config(40, 64, clip), &Device::Cpu).unwrap();
         let batch = on_policy_batch(&ppo, 3);
         assert_eq!(mean_ratio_move(&ppo, &batch), 0.0);
         let stats = ppo.update(&batch).unwrap();
@@ -89,7 +89,7 @@ fn the_clip_bounds_how_far_an_update_moves_the_policy() {
 /// under normalised advantages.
 #[test]
 fn one_step_on_policy_starts_at_ratio_one() {
-    let mut ppo = Ppo::new(&config(1, 1, 0.2), &Device::Cpu).unwrap();
+    let mut ppo = Ppo::new(&config(1, 64, 0.2), &Device::Cpu).unwrap();
     let batch = on_policy_batch(&ppo, 4);
     let s = ppo.update(&batch).unwrap();
     assert_eq!(s.get("approx_kl"), Some(0.0));
@@ -112,7 +112,7 @@ fn values(tensors: Vec<(String, Tensor)>) -> Vec<(String, Vec<f32>)> {
 fn a_non_finite_minibatch_puts_the_whole_update_back() {
     // 64 steps in 64 minibatches of one: only the step with the huge reward fails,
     // after the steps shuffled before it.
-    let mut ppo = Ppo::new(&config(2, 64, 0.2), &Device::Cpu).unwrap();
+    let mut ppo = Ppo::new(&config(2, 1, 0.2), &Device::Cpu).unwrap();
     let good = on_policy_batch(&ppo, 5);
     let mut bad = good.clone();
     // Step 0 of trajectory 1: only its own return is huge (GAE looks forward).
@@ -131,7 +131,7 @@ fn a_non_finite_minibatch_puts_the_whole_update_back() {
 /// (weights, Adam slots, step count and the shuffle stream are in the state).
 #[test]
 fn a_resumed_ppo_goes_on_to_the_bit() {
-    let cfg = config(3, 4, 0.2);
+    let cfg = config(3, 16, 0.2);
     let mut a = Ppo::new(&cfg, &Device::Cpu).unwrap();
     let batches: Vec<_> = (0..4).map(|s| on_policy_batch(&a, 20 + s)).collect();
     a.update(&batches[0]).unwrap();
@@ -162,7 +162,7 @@ fn a_resumed_ppo_goes_on_to_the_bit() {
 /// vector reward (a reward on coordinate 1 alone moves its value, not coordinate 0's).
 #[test]
 fn the_vector_critic_learns_each_coordinate_apart() {
-    let mut cfg = config(5, 2, 0.2);
+    let mut cfg = config(5, 32, 0.2);
     cfg.ppo.vector = true;
     let mut ppo = Ppo::new(&cfg, &Device::Cpu).unwrap();
     assert_eq!(ppo.c, 2);
