@@ -3,6 +3,7 @@
 
 pub mod grpc;
 pub mod remote;
+pub mod slow;
 
 use saver_core::acting::ActingPolicy;
 use saver_core::config::Mode;

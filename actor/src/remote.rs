@@ -3,7 +3,7 @@
 //! until the run finishes or the learner stays away too long.
 
 use crate::grpc::GrpcLink;
-use crate::{run_actor, ActorError, ActorSummary};
+use crate::{run_actor_with, ActorError, ActorSummary};
 use saver_core::link::{LinkError, Registration};
 use saver_proto::ClientAccess;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -24,6 +24,8 @@ pub struct RemoteActor {
     pub shared_weights: bool,
     /// Token and TLS.
     pub access: ClientAccess,
+    /// Added to every env step (an actor slower than the rest; zero: none).
+    pub step_delay: Duration,
 }
 
 /// Why a remote actor stopped before the run finished.
@@ -75,7 +77,20 @@ pub fn run_remote(a: &RemoteActor, stop: &AtomicBool) -> Result<ActorSummary, Re
         let outcome = GrpcLink::connect_with(&a.learner, &a.access)
             .map(|l| l.with_shared_files(a.shared_weights))
             .map_err(ActorError::from)
-            .and_then(|mut link| run_actor(&mut link, &reg, stop));
+            .and_then(|mut link| {
+                let make = |s: &saver_core::link::ActorSettings| {
+                    let env = crate::preset_env(s)?;
+                    Ok(if a.step_delay.is_zero() {
+                        env
+                    } else {
+                        Box::new(crate::slow::SlowEnv {
+                            inner: env,
+                            delay: a.step_delay,
+                        }) as Box<dyn saver_core::env::Env>
+                    })
+                };
+                run_actor_with(&mut link, &reg, stop, &Default::default(), &make)
+            });
         let why = match outcome {
             Ok(s) => {
                 total.rollouts += s.rollouts;

@@ -351,6 +351,10 @@ pub struct ActorArgs {
     /// directory is readable here.
     #[arg(long)]
     pub no_shared_weights: bool,
+    /// Sleep this many microseconds after every env step: an actor slower than the
+    /// rest, as on a slower machine (to measure async mode and --vtrace)
+    #[arg(long, value_name = "MICROSECONDS", default_value_t = 0)]
+    pub step_delay_us: u64,
     /// The learner's token and CA.
     #[command(flatten)]
     pub access: ClientArgs,
@@ -368,6 +372,7 @@ pub fn actor(args: ActorArgs) -> Result<()> {
         give_up: Duration::from_secs(args.connect_timeout),
         shared_weights: !args.no_shared_weights,
         access: args.access.access()?,
+        step_delay: Duration::from_micros(args.step_delay_us),
     };
     let total = run_remote(&a, &AtomicBool::new(false))?;
     eprintln!(

@@ -369,6 +369,7 @@ fn a_link_that_the_learner_forgets_registers_again() {
         give_up: Duration::from_secs(60),
         shared_weights: false,
         access: Default::default(),
+        step_delay: Duration::ZERO,
     };
     let stop = Arc::new(AtomicBool::new(false));
     let actor = {

@@ -450,3 +450,30 @@ fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
     assert!(err.message().contains("angle-d2"), "{err}");
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// The slow env steps exactly as the env it wraps (the same observations, rewards
+/// and ends from the same start).
+#[test]
+fn a_slow_env_steps_as_the_env_it_wraps() {
+    use saver_actor::slow::SlowEnv;
+    use saver_core::env::Env;
+    use saver_core::rng::rng_for;
+    use std::time::Duration;
+    let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
+    let mut plain = spec.make(20).unwrap();
+    let mut slow = SlowEnv {
+        inner: spec.make(20).unwrap(),
+        delay: Duration::from_micros(10),
+    };
+    let l = plain.layout();
+    let (mut a, mut b) = (vec![0.0; l.obs_dim], vec![0.0; l.obs_dim]);
+    plain.reset(&mut rng_for(3, 0), &mut a);
+    slow.reset(&mut rng_for(3, 0), &mut b);
+    assert_eq!(a, b);
+    for t in 0..25 {
+        let action = [0.3, (t as f32 * 0.7).sin()];
+        let (sa, sb) = (plain.step(&action, &mut a), slow.step(&action, &mut b));
+        assert_eq!((sa, &a), (sb, &b));
+        assert_eq!(plain.snapshot(), slow.snapshot());
+    }
+}
