@@ -72,7 +72,8 @@ def run(mode, seed):
                     if r["mean_ep_len_100"] and float(r["mean_ep_len_100"]) < opts.threshold
                     and int(r["episodes"]) >= 100), None)
     last = rows[-1]
-    return {"algo": opts.algo, "env": f"{opts.env}-d{opts.dim}", "mode": mode, "seed": seed, "steps": int(last["steps"]),
+    return {"algo": opts.algo, "env": f"{opts.env}-d{opts.dim}", "mode": mode, "seed": seed,
+            "steps": int(last["steps"]),
             "delay_us": opts.delay_us, "wall_s": round(wall, 1), "steps_per_s": round(int(last["steps"]) / wall),
             "lag_mean": round(sum(float(r["lag_mean"]) for r in rows) / len(rows), 2),
             "lag_max": max(int(r["lag_max"]) for r in rows), "stale_dropped": int(last["stale_dropped"]),
