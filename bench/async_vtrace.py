@@ -13,6 +13,8 @@ import argparse
 import csv
 import json
 import os
+import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -35,6 +37,7 @@ ap.add_argument("--extra", default="", help="flags for every learner")
 ap.add_argument("--out", default=None)
 opts = ap.parse_args()
 out = opts.out or tempfile.mkdtemp(prefix="saver-async-")
+os.makedirs(out, exist_ok=True)
 
 
 def free_port():
@@ -47,6 +50,7 @@ def run(mode, seed):
     port = free_port()
     name = f"{opts.env}{opts.dim}-{opts.algo}-{mode}-seed{seed}"
     folder = os.path.join(out, name)
+    shutil.rmtree(folder, ignore_errors=True)  # a fresh run, not a resumed one
     flags = ["--algo", opts.algo, "--env", opts.env, "--dim", str(opts.dim), "--steps", str(opts.steps),
              "--seed", str(seed), "--actors", str(opts.actors), *opts.extra.split()]
     if mode != "sync":
@@ -65,8 +69,10 @@ def run(mode, seed):
                                        stdout=log, stderr=subprocess.STDOUT))
     for a in actors:
         a.wait(timeout=7200)
-    learner.wait(timeout=600)
     wall = time.time() - start
+    # The learner serves its final weights until told to stop.
+    learner.send_signal(signal.SIGINT)
+    learner.wait(timeout=60)
     rows = list(csv.DictReader(open(os.path.join(folder, "metrics.csv"))))
     reached = next((int(r["steps"]) for r in rows
                     if r["mean_ep_len_100"] and float(r["mean_ep_len_100"]) < opts.threshold
