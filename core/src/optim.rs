@@ -85,6 +85,9 @@ pub struct Optimizer {
     clip: Option<f64>,
     /// Decay the learning rate linearly to zero over this many steps, if set.
     decay_over: Option<u64>,
+    /// Step on the host in one pass per variable (every variable on the CPU) instead of
+    /// a dozen tensor ops; the same f32 arithmetic, so the same bits.
+    host: bool,
 }
 
 impl Optimizer {
@@ -114,6 +117,7 @@ impl Optimizer {
             }
         }
         Ok(Self {
+            host: vars.iter().all(|(_, v)| v.device().is_cpu()),
             vars,
             slot1,
             slot2,
@@ -187,6 +191,10 @@ impl Optimizer {
             };
             // Gradients can carry the op graph that produced them; the slots must not
             // keep it (and the previous slots) alive from step to step.
+            if self.host {
+                next.push(self.host_step(i, g, scale, lr, t)?);
+                continue;
+            }
             let g = &if scale < 1.0 {
                 (g * scale)?.detach()
             } else {
@@ -212,6 +220,10 @@ impl Optimizer {
             }
         }
         for (i, value, s1, s2) in &next {
+            if self.host {
+                // Checked as they were made (host_step).
+                break;
+            }
             for (what, x) in [
                 ("value", Some(value)),
                 ("slot", Some(s1)),
@@ -241,6 +253,74 @@ impl Optimizer {
         }
         self.t = t;
         Ok(norm)
+    }
+
+    /// Variable `i`'s new value and slots from its gradient `g`, in one pass on the host:
+    /// the arithmetic of the tensor path (each constant rounded to f32 as candle's
+    /// affine does), so both give the same bits. Non-finite results are
+    /// [`CoreError::NonFinite`].
+    fn host_step(
+        &self,
+        i: usize,
+        g: &Tensor,
+        scale: f64,
+        lr: f64,
+        t: u64,
+    ) -> Result<(usize, Tensor, Tensor, Option<Tensor>)> {
+        let var = &self.vars[i].1;
+        let host = |x: &Tensor| -> Result<Vec<f32>> { Ok(x.flatten_all()?.to_vec1::<f32>()?) };
+        let mut g = host(g)?;
+        if scale < 1.0 {
+            let s = scale as f32;
+            g.iter_mut().for_each(|x| *x *= s);
+        }
+        let mut value = host(var.as_tensor())?;
+        let mut s1 = host(&self.slot1[i])?;
+        let mut s2 = match self.slot2.get(i) {
+            Some(s) => host(s)?,
+            None => Vec::new(),
+        };
+        let mut finite = true;
+        match self.config {
+            OptimizerConfig::Rmsprop { decay, eps, .. } => {
+                let one_minus = 1.0f32 - decay as f32;
+                let (lr, eps) = (lr as f32, eps as f32);
+                for ((w, ms), &g) in value.iter_mut().zip(s1.iter_mut()).zip(&g) {
+                    *ms += (g * g - *ms) * one_minus;
+                    *w -= (g * lr) / (*ms + eps).sqrt();
+                    finite &= w.is_finite() && ms.is_finite();
+                }
+            }
+            OptimizerConfig::Adam { beta1, beta2, eps } => {
+                let ti = t as i32;
+                let lr_t = (lr * (1.0 - beta2.powi(ti)).sqrt() / (1.0 - beta1.powi(ti))) as f32;
+                let (b1, b2) = (beta1 as f32, beta2 as f32);
+                let (c1, c2, eps) = ((1.0 - beta1) as f32, (1.0 - beta2) as f32, eps as f32);
+                for (((w, m), v), &g) in value.iter_mut().zip(&mut s1).zip(&mut s2).zip(&g) {
+                    *m = *m * b1 + g * c1;
+                    *v = *v * b2 + g * g * c2;
+                    *w -= (*m * lr_t) / (v.sqrt() + eps);
+                    finite &= w.is_finite() && m.is_finite() && v.is_finite();
+                }
+            }
+        }
+        if !finite {
+            return Err(CoreError::NonFinite(format!(
+                "the step would make the value or a slot of {} non-finite",
+                self.vars[i].0
+            )));
+        }
+        let shape = var.shape().clone();
+        let dev = var.device();
+        let s2 = (!s2.is_empty())
+            .then(|| Tensor::from_vec(s2, shape.clone(), dev))
+            .transpose()?;
+        Ok((
+            i,
+            Tensor::from_vec(value, shape.clone(), dev)?,
+            Tensor::from_vec(s1, shape, dev)?,
+            s2,
+        ))
     }
 
     /// The slots as named tensors (`opt.<slot>.<var>`), for checkpoints.
@@ -373,5 +453,47 @@ mod tests {
         }
         let theta = v.as_tensor().to_vec1::<f32>().unwrap()[0];
         assert!((theta - 0.975).abs() < 1e-5, "{theta}");
+    }
+
+    /// The one-pass host step and the tensor ops give the same bits: a 3x5 weight and
+    /// a bias through 6 steps of a loss with varied gradients, clipped on some steps,
+    /// for both optimisers.
+    #[test]
+    fn the_host_step_equals_the_tensor_step_to_the_bit() {
+        for config in [OptimizerConfig::RMSPROP_TF1, OptimizerConfig::ADAM_TF1] {
+            let run = |host: bool| -> Vec<Vec<f32>> {
+                let w = Var::from_slice(
+                    &(0..15).map(|i| (i as f32 * 0.37).sin()).collect::<Vec<_>>(),
+                    (3, 5),
+                    &Device::Cpu,
+                )
+                .unwrap();
+                let b = Var::from_slice(&[0.1f32, -0.2, 0.3], 3, &Device::Cpu).unwrap();
+                let vars = vec![("w".into(), w.clone()), ("b".into(), b.clone())];
+                let mut opt = Optimizer::with_clip(vars, config, 0.01, Some(2.0)).unwrap();
+                assert!(opt.host);
+                opt.host = host;
+                let x = Tensor::from_slice(&[0.5f32, -1.5, 2.0, 0.25, -0.75], (5, 1), &Device::Cpu)
+                    .unwrap();
+                for k in 0..6 {
+                    // loss = Σ (W·x + b)³ · (k + 1): gradients change with W and k.
+                    let y = (w.as_tensor().matmul(&x).unwrap().squeeze(1).unwrap() + b.as_tensor())
+                        .unwrap();
+                    let loss = (y.powf(3.0).unwrap().sum_all().unwrap() * (k + 1) as f64).unwrap();
+                    opt.step(&loss.backward().unwrap()).unwrap();
+                }
+                let mut out: Vec<Vec<f32>> = [w.as_tensor(), b.as_tensor()]
+                    .iter()
+                    .map(|t| t.flatten_all().unwrap().to_vec1().unwrap())
+                    .collect();
+                out.extend(
+                    opt.slots()
+                        .iter()
+                        .map(|(_, t)| t.flatten_all().unwrap().to_vec1().unwrap()),
+                );
+                out
+            };
+            assert_eq!(run(true), run(false), "{config:?}");
+        }
     }
 }
