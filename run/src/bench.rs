@@ -246,11 +246,7 @@ fn time_update(
         .transpose()?;
     let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
     a.set_threads(threads);
-    // 16 actors x the rollout; PPO's minibatches of 64 cost the same whatever the
-    // batch, so it times a 2,048-step batch (32 of them a pass), not its default 32,768.
-    if algo == Algo::Ppo {
-        config.rollout = 128;
-    }
+    // 16 actors x the rollout (PPO on angle: 128, 32 minibatches of 64 a pass).
     let batch = synthetic_batch(&spec.layout(), config.rollout as usize, d as u64);
     let s = time(seconds, || {
         a.update(&batch)?;

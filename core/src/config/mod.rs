@@ -204,11 +204,15 @@ pub const HIGH_DIM_PRETRAIN_BATCHES: u64 = 100_000;
 pub const HIGH_DIM_LOG_STD_MIN: f64 = -1.6;
 /// PPO's learning rate (Adam; Stable-Baselines3's).
 pub const RECOMMENDED_PPO_LR: f64 = 3e-4;
-/// PPO's rollout length: Stable-Baselines3's `n_steps`, 2,048 steps per env and update
-/// (on Reacher-v5, 8 envs, seed 0, 1 M steps: return -5.4 and success 1.00 with it,
-/// against -19.2 and 0.34 with 128, whose 1,024-step batches let σ collapse to the
-/// floor and each update's KL grow past 0.5; results/README.md, "PPO").
+/// PPO's rollout length on a custom env: Stable-Baselines3's `n_steps`, 2,048 steps per
+/// env and update (on Reacher-v5, 8 envs, seed 0, 1 M steps: return -5.4 and success
+/// 1.00 with it, against -19.2 and 0.34 with 128, whose 1,024-step batches let σ
+/// collapse to the floor and each update's KL grow past 0.5; results/README.md, "PPO").
 pub const RECOMMENDED_PPO_ROLLOUT: u32 = 2048;
+/// PPO's rollout length on a preset: 16 actors make 2,048-step batches (angle d = 4,
+/// seed 0, 1 M steps: mean length 11.8 with 128, 20.5 with 2,048, whose 32,768-step
+/// batches give 31 updates in the run).
+pub const PRESET_PPO_ROLLOUT: u32 = 128;
 /// PPO's gradient-norm clip (Stable-Baselines3's `max_grad_norm`).
 pub const RECOMMENDED_PPO_GRAD_CLIP: f64 = 0.5;
 /// Async mode's policy lag unless set.
@@ -307,7 +311,10 @@ impl RunConfig {
             // (μ = tanh, log σ in [-4.6, 0]) and bootstrapped timeouts.
             c.optimizer = OptimizerKind::Adam;
             c.lr = RECOMMENDED_PPO_LR;
-            c.rollout = RECOMMENDED_PPO_ROLLOUT;
+            c.rollout = match env.kind() {
+                Some(_) => PRESET_PPO_ROLLOUT,
+                None => RECOMMENDED_PPO_ROLLOUT,
+            };
             c.grad_clip = Some(RECOMMENDED_PPO_GRAD_CLIP);
             c.head = HeadConfig::IN_PCPN_DOMAIN;
             c.bootstrap_timeout = true;

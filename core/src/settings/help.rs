@@ -132,7 +132,7 @@ mod tests {
         assert_eq!(help("Discount γ", "gamma"), "Discount γ [default: 0.99]");
         assert_eq!(
             help("Rollout", "rollout"),
-            "Rollout [default: 8] (ppo: 2048)"
+            "Rollout [default: 8] (ppo: 128)"
         );
         assert_eq!(
             help("Floor", "head.log_std_min"),
