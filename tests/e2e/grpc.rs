@@ -279,21 +279,14 @@ fn a_late_actor_starts_from_the_newest_weights_and_joins_the_rounds() {
     std::fs::remove_dir_all(dir).ok();
 }
 
-#[test]
-fn async_mode_drops_rollouts_older_than_max_lag() {
-    // Async, 2 rollouts per update, max_lag 0: two actors train; a third acts on
-    // version 0 and hands its rollout in only once the learner is at version 2. It must
-    // be dropped as stale, and no update may use a rollout older than max_lag.
-    let mut config = RunConfig::paper(
-        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
-        Algo::A2c,
-        400 * 2 * 8,
-    );
-    config.actors = 2;
-    config.mode = saver_core::config::Mode::Async;
-    config.max_lag = Some(0);
-    let dir = temp_dir("async");
-    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
+/// An async run of `config` (2 in-process actors) into `dir` while a third actor acts
+/// on version 0 and hands its rollout in only once the learner is at version `late`.
+fn run_with_a_late_rollout(
+    config: &RunConfig,
+    dir: &Path,
+    late: u64,
+) -> saver_learner::TrainerOutcome {
+    let learner = start_learner(config, dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
     let hub = learner.hub.clone();
     let mut slow = saver_learner::InProcessLink::new(hub.clone());
     let reg = |i: u64| Registration {
@@ -315,26 +308,53 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
             std::thread::spawn(move || run_actor(&mut link, &r, &AtomicBool::new(false)).unwrap())
         })
         .collect();
-    hub.wait_weights(2).unwrap();
+    hub.wait_weights(late).unwrap();
     slow.push(old).expect("the learner is still training");
-    let (_, o) = follow(learner, &config, false, |_| {}).unwrap();
+    let (_, o) = follow(learner, config, false, |_| {}).unwrap();
     for a in actors {
         a.join().unwrap();
     }
+    o
+}
+
+/// metrics.csv's column `name`, parsed.
+fn metrics_column<T: std::str::FromStr>(o: &saver_learner::TrainerOutcome, name: &str) -> Vec<T>
+where
+    T::Err: std::fmt::Debug,
+{
+    let csv = std::fs::read_to_string(&o.metrics).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = header.iter().position(|h| *h == name).unwrap();
+    csv.lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
+        .collect()
+}
+
+#[test]
+fn async_mode_drops_rollouts_older_than_max_lag() {
+    // Async, 2 rollouts per update, max_lag 0: two actors train; a third acts on
+    // version 0 and hands its rollout in only once the learner is at version 2. It must
+    // be dropped as stale, and no update may use a rollout older than max_lag.
+    let mut config = RunConfig::paper(
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        Algo::A2c,
+        400 * 2 * 8,
+    );
+    config.actors = 2;
+    config.mode = saver_core::config::Mode::Async;
+    config.max_lag = Some(0);
+    let dir = temp_dir("async");
+    let o = run_with_a_late_rollout(&config, &dir, 2);
     assert!(
         o.stale_dropped >= 1,
         "the version-0 rollout was not dropped"
     );
-    let csv = std::fs::read_to_string(&o.metrics).unwrap();
-    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
-    let col = header.iter().position(|h| *h == "lag_max").unwrap();
-    for line in csv.lines().skip(1) {
-        let lag: u64 = line.split(',').nth(col).unwrap().parse().unwrap();
-        assert_eq!(
-            lag, 0,
-            "an update used a rollout older than max_lag: {line}"
-        );
-    }
+    let lags: Vec<u64> = metrics_column(&o, "lag_max");
+    assert!(
+        lags.iter().all(|&l| l == 0),
+        "an update used a rollout older than max_lag: {lags:?}"
+    );
     std::fs::remove_dir_all(dir).ok();
 }
 
@@ -358,54 +378,23 @@ fn vtrace_weighs_a_slow_actors_rollout_by_its_ratios() {
     config.lr = 3e-3;
     config.validate().unwrap();
     let dir = temp_dir("async-vtrace");
-    let learner = start_learner(&config, &dir, None, Arc::new(AtomicBool::new(false)), 0).unwrap();
-    let hub = learner.hub.clone();
-    let mut slow = saver_learner::InProcessLink::new(hub.clone());
-    let reg = |i: u64| Registration {
-        name: format!("v{i}"),
-        session: i,
-        n_envs: 1,
-    };
-    let assignment = slow.register(&reg(9)).unwrap();
-    let v0 = slow.weights(0).unwrap();
-    let mut policy = saver_core::nets::Policy::new(v0, config.env.layout(), config.head).unwrap();
-    let old = saver_actor::Actor::new(&assignment, 1)
-        .unwrap()
-        .collect(&mut policy);
-    let actors: Vec<_> = (0..2)
-        .map(|i| {
-            let mut link = saver_learner::InProcessLink::new(hub.clone());
-            let r = reg(i);
-            std::thread::spawn(move || run_actor(&mut link, &r, &AtomicBool::new(false)).unwrap())
-        })
-        .collect();
-    hub.wait_weights(5).unwrap();
-    slow.push(old).expect("the learner is still training");
-    let (_, o) = follow(learner, &config, false, |_| {}).unwrap();
-    for a in actors {
-        a.join().unwrap();
-    }
-    let csv = std::fs::read_to_string(&o.metrics).unwrap();
-    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
-    let col = |name| header.iter().position(|h| *h == name).unwrap();
-    let (lag, mean, max) = (
-        col("lag_max"),
-        col("vtrace_ratio_mean"),
-        col("vtrace_ratio_max"),
-    );
+    let o = run_with_a_late_rollout(&config, &dir, 5);
+    let lags: Vec<u64> = metrics_column(&o, "lag_max");
+    let means: Vec<f32> = metrics_column(&o, "vtrace_ratio_mean");
+    let maxes: Vec<f32> = metrics_column(&o, "vtrace_ratio_max");
     let mut slow_rows = 0;
-    for line in csv.lines().skip(1) {
-        let f: Vec<&str> = line.split(',').collect();
-        let (l, m, x): (u64, f32, f32) = (
-            f[lag].parse().unwrap(),
-            f[mean].parse().unwrap(),
-            f[max].parse().unwrap(),
-        );
-        if l >= 5 {
+    for ((l, m), x) in lags.iter().zip(&means).zip(&maxes) {
+        if *l >= 5 {
             slow_rows += 1;
-            assert!((x - 1.0).abs() > 0.01 || (m - 1.0).abs() > 0.01, "{line}");
-        } else if l == 0 {
-            assert!((m - 1.0).abs() < 1e-3 && (x - 1.0).abs() < 1e-2, "{line}");
+            assert!(
+                (x - 1.0).abs() > 0.01 || (m - 1.0).abs() > 0.01,
+                "{l} {m} {x}"
+            );
+        } else if *l == 0 {
+            assert!(
+                (m - 1.0).abs() < 1e-3 && (x - 1.0).abs() < 1e-2,
+                "{l} {m} {x}"
+            );
         }
     }
     assert!(slow_rows >= 1, "the slow rollout was not used");
