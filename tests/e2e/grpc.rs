@@ -382,8 +382,9 @@ fn vtrace_weighs_a_slow_actors_rollout_by_its_ratios() {
     let lags: Vec<u64> = metrics_column(&o, "lag_max");
     let means: Vec<f32> = metrics_column(&o, "vtrace_ratio_mean");
     let maxes: Vec<f32> = metrics_column(&o, "vtrace_ratio_max");
+    let clipped: Vec<f32> = metrics_column(&o, "vtrace_clipped");
     let mut slow_rows = 0;
-    for ((l, m), x) in lags.iter().zip(&means).zip(&maxes) {
+    for (((l, m), x), c) in lags.iter().zip(&means).zip(&maxes).zip(&clipped) {
         if *l >= 5 {
             slow_rows += 1;
             assert!(
@@ -395,6 +396,8 @@ fn vtrace_weighs_a_slow_actors_rollout_by_its_ratios() {
                 (m - 1.0).abs() < 1e-3 && (x - 1.0).abs() < 1e-2,
                 "{l} {m} {x}"
             );
+            // Rounding apart, not clipped.
+            assert_eq!(*c, 0.0, "{l} {m} {x}");
         }
     }
     assert!(slow_rows >= 1, "the slow rollout was not used");

@@ -27,8 +27,11 @@ pub struct Corrected {
     pub stats: Vec<(&'static str, f32)>,
 }
 
+/// How far above ρ̄ a ratio must be to count in `vtrace_clipped`.
+const CLIP_TOLERANCE: f32 = 1e-4;
+
 /// The metrics.csv columns V-trace adds: the mean and largest ratio π/μ of the batch's
-/// steps and the share of steps whose ratio ρ̄ clips.
+/// steps and the share of steps whose ratio ρ̄ clips (by more than 1e-4 of ρ̄).
 pub const VTRACE_STATS: [&str; 3] = ["vtrace_ratio_mean", "vtrace_ratio_max", "vtrace_clipped"];
 
 impl Vtrace {
@@ -86,7 +89,13 @@ impl Vtrace {
         let n = ratio.len().max(1) as f64;
         let mean = ratio.iter().map(|&r| r as f64).sum::<f64>() / n;
         let max = ratio.iter().copied().fold(0.0f32, f32::max);
-        let clipped = ratio.iter().filter(|&&r| r > self.rho_bar).count() as f64 / n;
+        // A ratio above ρ̄ by rounding alone (the actor's forward pass against the
+        // learner's, ~1e-6 apart on a current rollout) is not counted as clipped.
+        let clipped = ratio
+            .iter()
+            .filter(|&&r| r > self.rho_bar * (1.0 + CLIP_TOLERANCE))
+            .count() as f64
+            / n;
         let stats = VTRACE_STATS
             .into_iter()
             .zip([mean as f32, max, clipped as f32])
