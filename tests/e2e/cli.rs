@@ -57,8 +57,8 @@ fn bad_flags_and_files_get_clear_errors_not_panics() {
             "invalid value 'maze' for '--env <ENV>'",
         ),
         (
-            vec!["--algo".into(), "ppo".into()],
-            "invalid value 'ppo' for '--algo <ALGO>'",
+            vec!["--algo".into(), "dqn".into()],
+            "invalid value 'dqn' for '--algo <ALGO>'",
         ),
         (vec!["--lr=-1".into()], "lr: -1"),
         (vec!["--gamma".into(), "2".into()], "gamma"),
