@@ -219,11 +219,8 @@ impl Optimizer {
                 }
             }
         }
-        for (i, value, s1, s2) in &next {
-            if self.host {
-                // Checked as they were made (host_step).
-                break;
-            }
+        // The host steps checked their values as they made them.
+        for (i, value, s1, s2) in next.iter().filter(|_| !self.host) {
             for (what, x) in [
                 ("value", Some(value)),
                 ("slot", Some(s1)),

@@ -93,6 +93,16 @@ pub struct AlgoState {
     pub numbers: BTreeMap<String, u128>,
 }
 
+impl AlgoState {
+    /// The saved tensor `name` (what [`Algorithm::restore_state`]'s `get` looks up).
+    pub fn get(&self, name: &str) -> Option<Tensor> {
+        self.tensors
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, t)| t.clone())
+    }
+}
+
 /// Key of the optimiser's step count in [`AlgoState::numbers`].
 pub const OPTIMIZER_STEPS: &str = "optimizer_steps";
 /// Key of the learner's random-stream position (SAVER's τ draws).
@@ -262,6 +272,23 @@ pub(crate) fn timeout_ends(
     Ok(Some(batch.timeout_ends(&v, c)))
 }
 
+/// What every return recursion reads from V at [`update_rows`]' rows (`values`,
+/// [rows] or [rows, c]) besides the steps' own values: each trajectory's bootstrap
+/// V(o_n) ([T, c]) and the `ends` of [`crate::returns::n_step_returns`] (`n_ends`
+/// timeouts).
+pub(crate) fn bootstrap_and_ends(
+    batch: &crate::rollout::Batch,
+    values: &Tensor,
+    n_ends: usize,
+    c: usize,
+) -> Result<(Vec<f32>, Option<Vec<f32>>)> {
+    let bootstrap = values
+        .narrow(0, batch.len(), batch.n_traj)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
+    Ok((bootstrap, timeout_ends(batch, values, n_ends, c)?))
+}
+
 /// The n-step returns of `rewards` ([B, c]: the summed reward with c = 1, the vector
 /// reward with c = d) for every algorithm, bootstrapped from `values`: V at
 /// [`update_rows`]' rows ([rows] or [rows, c]); `n_ends` timeouts at their end.
@@ -273,11 +300,7 @@ pub(crate) fn batch_returns(
     c: usize,
     gamma: f32,
 ) -> Result<Vec<f32>> {
-    let bootstrap = values
-        .narrow(0, batch.len(), batch.n_traj)?
-        .flatten_all()?
-        .to_vec1::<f32>()?; // [T, c]
-    let ends = timeout_ends(batch, values, n_ends, c)?;
+    let (bootstrap, ends) = bootstrap_and_ends(batch, values, n_ends, c)?;
     Ok(crate::returns::n_step_returns(
         rewards,
         &batch.done,

@@ -185,14 +185,7 @@ mod tests {
             .iter()
             .any(|(n, _)| n.starts_with("opt.") && n.ends_with(".pcpn.l0.w")));
         let mut b = fresh();
-        let get = |n: &str| {
-            saved
-                .tensors
-                .iter()
-                .find(|(k, _)| k == n)
-                .map(|(_, t)| t.clone())
-        };
-        b.restore_state(&get, &saved.numbers).unwrap();
+        b.restore_state(&|n| saved.get(n), &saved.numbers).unwrap();
         for batch in &batches[2..] {
             // (per_dim's rank columns are made afresh on a learner's first update)
             let (sa, sb) = (a.update(batch).unwrap(), b.update(batch).unwrap());

@@ -10,7 +10,9 @@
 //! and the one of V_old + clip(V − V_old, ±clip). With `ppo.vector` the critic is
 //! V(o) ∈ R^d on the vector reward, GAE runs per coordinate and Â is the sum over them.
 
-use super::{check_finite, policy_diagnostics, timeout_ends, update_rows, Algorithm, UpdateStats};
+use super::{
+    bootstrap_and_ends, check_finite, policy_diagnostics, update_rows, Algorithm, UpdateStats,
+};
 use crate::config::{PpoConfig, RunConfig};
 use crate::env::EnvLayout;
 use crate::nets::{gaussian_log_prob, Agent, Critic};
@@ -141,11 +143,7 @@ impl Ppo {
         )?;
         let v_all = self.critic.forward(&rows)?.detach(); // [B + T + k, c]
         let values = v_all.narrow(0, 0, b)?.flatten_all()?.to_vec1::<f32>()?;
-        let bootstrap = v_all
-            .narrow(0, b, batch.n_traj)?
-            .flatten_all()?
-            .to_vec1::<f32>()?;
-        let ends = timeout_ends(batch, &v_all, k, c)?;
+        let (bootstrap, ends) = bootstrap_and_ends(batch, &v_all, k, c)?;
         let rewards = if c == 1 {
             batch.scalar_reward()
         } else {
@@ -311,17 +309,20 @@ struct Host {
 /// 1 − Var(R − V)/Var(R): how much of the returns' spread the critic explains (1 all,
 /// 0 none, below 0 worse than their mean); 0 where the returns do not vary.
 fn explained_variance(returns: &[f32], values: &[f32]) -> f32 {
-    let var = |x: &mut dyn Iterator<Item = f64>| {
-        let v: Vec<f64> = x.collect();
-        let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
-        v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len().max(1) as f64
-    };
-    let var_r = var(&mut returns.iter().map(|&r| r as f64));
+    let var_r = variance(returns.iter().map(|&r| r as f64));
     if var_r == 0.0 {
         return 0.0;
     }
-    let var_e = var(&mut returns.iter().zip(values).map(|(&r, &v)| (r - v) as f64));
+    let var_e = variance(returns.iter().zip(values).map(|(&r, &v)| (r - v) as f64));
     (1.0 - var_e / var_r) as f32
+}
+
+/// The population variance of `xs`, in f64.
+fn variance(xs: impl Iterator<Item = f64>) -> f64 {
+    let v: Vec<f64> = xs.collect();
+    let n = v.len().max(1) as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n
 }
 
 impl Algorithm for Ppo {
@@ -335,14 +336,7 @@ impl Algorithm for Ppo {
         let before = self.save_state()?;
         let result = self.epochs(batch);
         if result.is_err() {
-            let get = |name: &str| {
-                before
-                    .tensors
-                    .iter()
-                    .find(|(n, _)| n == name)
-                    .map(|(_, t)| t.clone())
-            };
-            self.restore_state(&get, &before.numbers)?;
+            self.restore_state(&|name| before.get(name), &before.numbers)?;
         }
         result
     }

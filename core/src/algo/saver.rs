@@ -202,16 +202,17 @@ impl Algorithm for Saver {
         let v_all = self.critic.forward(&x_all)?; // [B+T, d]
         let value = v_all.narrow(0, 0, b)?;
         // Â on the host (what the fast path and the statistics read) and as a tensor.
+        let mu = out.mu.narrow(0, 0, b)?;
+        let log_std = out.log_std.narrow(0, 0, b)?;
         let mut vtrace_stats = Vec::new();
-        let (returns_host, mut adv_host) = match self.vtrace {
+        let (returns_host, returns, mut adv_host) = match self.vtrace {
             None => {
                 let r = batch_returns(batch, &batch.vector_reward, &v_all, n_ends, d, self.gamma)?;
                 let returns = Tensor::from_slice(&r, (b, d), &self.dev)?;
                 let adv: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?;
-                (r, adv)
+                (r, returns, adv)
             }
             Some(vt) => {
-                let (mu, log_std) = (out.mu.narrow(0, 0, b)?, out.log_std.narrow(0, 0, b)?);
                 let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
                 let log_pi = gaussian_log_prob(&self.layout, &mu, &log_std, &actions)?
                     .detach()
@@ -227,10 +228,10 @@ impl Algorithm for Saver {
                     &log_pi,
                 )?;
                 vtrace_stats = corrected.stats;
-                (corrected.targets, corrected.advantages)
+                let returns = Tensor::from_slice(&corrected.targets, (b, d), &self.dev)?;
+                (corrected.targets, returns, corrected.advantages)
             }
         };
-        let returns = Tensor::from_slice(&returns_host, (b, d), &self.dev)?;
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }
@@ -238,8 +239,6 @@ impl Algorithm for Saver {
         let critic_loss = ((&value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
 
         let taus = uniform01(&mut self.rng, d * b * k);
-        let mu = out.mu.narrow(0, 0, b)?;
-        let log_std = out.log_std.narrow(0, 0, b)?;
         let obs = obs_all.narrow(0, 0, b)?;
         let (mu_host, log_std_host): (Vec<f32>, Vec<f32>) = (
             mu.flatten_all()?.to_vec1()?,

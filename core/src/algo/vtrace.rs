@@ -2,7 +2,7 @@
 //! the ratios π/μ of the batch's actions, from the behaviour policy's payload, and the
 //! V-trace critic targets and advantages A2C and SAVER learn from under `--vtrace`.
 
-use super::{behaviour_log_probs, timeout_ends};
+use super::{behaviour_log_probs, bootstrap_and_ends};
 use crate::config::RunConfig;
 use crate::rollout::Batch;
 use crate::Result;
@@ -69,11 +69,7 @@ impl Vtrace {
         let rho: Vec<f32> = ratio.iter().map(|r| r.min(self.rho_bar)).collect();
         let cs: Vec<f32> = ratio.iter().map(|r| r.min(self.c_bar)).collect();
         let v = values.narrow(0, 0, b)?.flatten_all()?.to_vec1::<f32>()?;
-        let bootstrap = values
-            .narrow(0, b, batch.n_traj)?
-            .flatten_all()?
-            .to_vec1::<f32>()?;
-        let ends = timeout_ends(batch, values, n_ends, c)?;
+        let (bootstrap, ends) = bootstrap_and_ends(batch, values, n_ends, c)?;
         let (targets, adv) = crate::returns::vtrace(
             rewards,
             &v,

@@ -138,14 +138,7 @@ fn a_resumed_ppo_goes_on_to_the_bit() {
     a.update(&batches[1]).unwrap();
     let saved = a.save_state().unwrap();
     let mut b = Ppo::new(&cfg, &Device::Cpu).unwrap();
-    let get = |n: &str| {
-        saved
-            .tensors
-            .iter()
-            .find(|(k, _)| k == n)
-            .map(|(_, t)| t.clone())
-    };
-    b.restore_state(&get, &saved.numbers).unwrap();
+    b.restore_state(&|n| saved.get(n), &saved.numbers).unwrap();
     for batch in &batches[2..] {
         assert_eq!(
             a.update(batch).unwrap().values,
