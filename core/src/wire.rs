@@ -333,7 +333,7 @@ mod tests {
         bare.layout = None;
         assert!(EnvSpec::try_from(&bare).is_err());
 
-        let config = crate::config::RunConfig::recommended(&custom, Algo::Saver, 1);
+        let config = crate::algo::recommended(&custom, Algo::Saver, 1);
         let s = ActorSettings::of(&config);
         let back = ActorSettings::try_from(&pb::RunSettings::from(&s)).unwrap();
         assert_eq!(back.env, custom);

@@ -13,11 +13,11 @@ use crate::train::train_with;
 use anyhow::Result;
 use candle_core::{Device, Tensor};
 use clap::Args;
-use saver_core::algo::{build, threads_for, Algorithm, GradPath};
+use saver_core::algo::{build, mlp_flops, threads_for, Algorithm, GradPath};
+use saver_core::config::Algo;
 use saver_core::config::PretrainConfig;
-use saver_core::config::{Algo, RunConfig};
 use saver_core::env::{EnvKind, EnvLayout, EnvSpec};
-use saver_core::nets::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
+use saver_core::nets::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
 use saver_core::pretrain::{EnvSampler, Pretrainer};
 use saver_core::rng::{rng_for, uniform01};
 use saver_core::rollout::Batch;
@@ -75,48 +75,7 @@ pub fn matmul_peak(seconds: f64) -> Result<f64> {
     Ok(2.0 * (n * n * n) as f64 / s / 1e9)
 }
 
-fn mlp_flops(rows: usize, dims: &[usize]) -> f64 {
-    dims.windows(2)
-        .map(|w| 2.0 * (rows * w[0] * w[1]) as f64)
-        .sum()
-}
-
-/// FLOPs of one update of `config`'s algorithm on `b` steps of `t` trajectories, as
-/// counted in the module doc.
-pub fn update_flops(config: &RunConfig, b: usize, t: usize) -> f64 {
-    let (l, k) = (&config.env.layout(), config.saver.quantiles);
-    let rows = b + t;
-    let [h0, h1, h2] = TRUNK;
-    match config.algo {
-        Algo::A2c => 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim() + 1]),
-        Algo::Saver => {
-            let agent = 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
-            let critic = 3.0 * mlp_flops(rows, &[l.pcpn_input_dim(), h0, h1, h2, l.aligned_dim]);
-            let d = l.aligned_dim;
-            let shared = mlp_flops(b, &[l.pcpn_input_dim(), PCPN_HIDDEN, d * PCPN_CHUNK]);
-            let heads = d as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
-            let embed = (b * k * d * PCPN_CHUNK) as f64;
-            agent + critic + 2.0 * (shared + heads + embed)
-        }
-        Algo::Qrrl => {
-            // The quantile policy is trained (3x its layers) over the actions' dims.
-            let c = l.continuous;
-            let critic = 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, 1]);
-            let shared = mlp_flops(b, &[l.obs_dim, PCPN_HIDDEN, c * PCPN_CHUNK]);
-            let heads = c as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
-            let embed = (b * k * c * PCPN_CHUNK) as f64;
-            critic + 3.0 * (shared + heads) + 2.0 * embed
-        }
-        Algo::Ppo => {
-            // The critic's values on every row, then each epoch trains agent and critic
-            // on every step once, then one agent forward for the diagnostics.
-            let c = if config.ppo.vector { l.aligned_dim } else { 1 };
-            let agent = mlp_flops(b, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
-            let critic = |n| mlp_flops(n, &[l.obs_dim, h0, h1, h2, c]);
-            critic(rows) + config.ppo.epochs as f64 * 3.0 * (agent + critic(b)) + agent
-        }
-    }
-}
+use saver_core::algo::update_flops;
 
 /// FLOPs of one pretraining batch of `b` samples with K = `k` (module doc).
 pub fn pretrain_flops(l: &EnvLayout, b: usize, k: usize) -> f64 {
@@ -236,9 +195,9 @@ fn time_update(
 ) -> Result<(f64, f64, usize)> {
     let dev = Device::Cpu;
     let spec = EnvSpec::new(EnvKind::Angle, d)?;
-    let mut config = RunConfig::recommended(&spec, algo, 1);
+    let mut config = saver_core::algo::recommended(&spec, algo, 1);
     if tune {
-        config.saver.pcpn_tune_lr = saver_core::config::CUSTOM_SAVER_PCPN_TUNE_LR;
+        config.saver.pcpn_tune_lr = saver_core::algo::CUSTOM_SAVER_PCPN_TUNE_LR;
     }
     let pcpn = algo
         .has_pcpn()
@@ -347,7 +306,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let out = std::env::temp_dir().join(format!("saver-bench-{}", std::process::id()));
     for (algo, d) in [(Algo::A2c, 4), (Algo::Saver, 4)] {
         let spec = EnvSpec::new(EnvKind::Angle, d)?;
-        let mut config = RunConfig::recommended(&spec, algo, 0);
+        let mut config = saver_core::algo::recommended(&spec, algo, 0);
         config.steps = args.cycle_updates * config.batch_transitions();
         let pcpn = algo
             .has_pcpn()

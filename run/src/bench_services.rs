@@ -33,7 +33,7 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
 /// there is no /dev/shm.
 pub fn processes_vs_embedded(algo: Algo, updates: u64) -> Result<(f64, f64, Option<f64>)> {
     let spec = EnvSpec::new(EnvKind::Angle, 4)?;
-    let mut config = RunConfig::recommended(&spec, algo, 0);
+    let mut config = saver_core::algo::recommended(&spec, algo, 0);
     config.steps = updates * config.batch_transitions();
     let dir = std::env::temp_dir().join(format!(
         "saver-bench-svc-{}-{}",

@@ -52,7 +52,7 @@ pub fn series(configs: &[&RunConfig]) -> Vec<String> {
 /// the default otherwise), as (config.toml name, value), and ("faithful", "") for a
 /// faithful run; settings that do not count for its algorithm ([`counts`]) left out.
 fn variant(c: &RunConfig) -> Vec<(String, String)> {
-    let def = RunConfig::recommended(&c.env, c.algo, c.steps);
+    let def = saver_core::algo::recommended(&c.env, c.algo, c.steps);
     let paper = RunConfig::paper(&c.env, c.algo, c.steps);
     let faithful = c.algo == Algo::Saver && c.head == paper.head && c.optimizer == paper.optimizer;
     let base = dotted(if faithful { &paper } else { &def });
@@ -76,7 +76,7 @@ mod tests {
     #[test]
     fn variants_name_every_changed_setting() {
         let env = saver_core::env::EnvSpec::new(saver_core::env::EnvKind::Angle, 4).unwrap();
-        let def = RunConfig::recommended(&env, Algo::Saver, 100);
+        let def = saver_core::algo::recommended(&env, Algo::Saver, 100);
         let words = |c: &RunConfig| {
             variant(c)
                 .iter()
@@ -99,7 +99,7 @@ mod tests {
         let slow = RunConfig { lr: 3e-4, ..paper };
         assert_eq!(words(&slow), "lr 0.0003, faithful ");
         // A2C has no PCPN: its pretraining settings are not a variant.
-        let mut a2c = RunConfig::recommended(&env, Algo::A2c, 100);
+        let mut a2c = saver_core::algo::recommended(&env, Algo::A2c, 100);
         a2c.pretrain.batches = 200;
         assert_eq!(words(&a2c), "");
     }
@@ -108,8 +108,8 @@ mod tests {
     #[test]
     fn shared_changes_are_left_out_of_the_names() {
         let env = saver_core::env::EnvSpec::new(saver_core::env::EnvKind::Arm, 2).unwrap();
-        let a2c = RunConfig::recommended(&env, Algo::A2c, 100);
-        let mut saver = RunConfig::recommended(&env, Algo::Saver, 100);
+        let a2c = saver_core::algo::recommended(&env, Algo::A2c, 100);
+        let mut saver = saver_core::algo::recommended(&env, Algo::Saver, 100);
         saver.pretrain.batches = 200;
         let fast = RunConfig {
             lr: 0.003,

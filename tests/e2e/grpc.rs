@@ -85,14 +85,14 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
         20 * 4 * 8,
     );
     // QRRL on angle d = 2: its quantile policy's τ payload crosses the wire too.
-    let qrrl = RunConfig::recommended(
+    let qrrl = saver_core::algo::recommended(
         &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::Qrrl,
         20 * 4 * 8,
     );
     // PPO on angle d = 2: its old log-probabilities come from the payload the actors
     // send; 2 passes of 4 minibatches of 8 per update.
-    let mut ppo = RunConfig::recommended(
+    let mut ppo = saver_core::algo::recommended(
         &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
         Algo::Ppo,
         20 * 4 * 8,
@@ -376,7 +376,7 @@ fn vtrace_weighs_a_slow_actors_rollout_by_its_ratios() {
     config.vtrace = true;
     // A rate at which 5 updates move the policy visibly.
     config.lr = 3e-3;
-    config.validate().unwrap();
+    saver_core::algo::validate(&config).unwrap();
     let dir = temp_dir("async-vtrace");
     let o = run_with_a_late_rollout(&config, &dir, 5);
     let lags: Vec<u64> = metrics_column(&o, "lag_max");

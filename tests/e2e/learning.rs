@@ -57,7 +57,7 @@ fn a2c_learns_angle_d2() {
 fn ppo_learns_angle_d2() {
     let dir = temp_dir("learn-ppo");
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
-    let config = RunConfig::recommended(&spec, Algo::Ppo, 80_000);
+    let config = saver_core::algo::recommended(&spec, Algo::Ppo, 80_000);
     let o = train_with(&config, &dir, None, Arc::new(AtomicBool::new(false)), false).unwrap();
     assert_learned(&o, "PPO", 150.0);
     std::fs::remove_dir_all(dir).ok();
@@ -113,7 +113,7 @@ fn column(metrics: &std::path::Path, name: &str) -> Vec<f64> {
 fn default_saver_learns_angle_d2_and_keeps_mu_in_the_pcpn_domain() {
     let dir = temp_dir("saver-learn");
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
-    let mut config = RunConfig::recommended(&spec, Algo::Saver, 150_000);
+    let mut config = saver_core::algo::recommended(&spec, Algo::Saver, 150_000);
     config.pretrain.batches = 1_000;
     let store = saver_pcpn_trainer::PcpnStore::new(dir.join("pcpn"));
     let pcpn = saver_run::pretrain::pcpn_for_run(&mut config, &store, None).unwrap();
@@ -174,7 +174,7 @@ fn faithful_saver_drives_mu_out_of_the_pcpn_domain() {
 fn qrrl_keeps_both_optima_of_the_bandit() {
     let dir = temp_dir("qrrl-bandit");
     let spec = EnvSpec::new(EnvKind::Bandit, 1).unwrap();
-    let mut config = RunConfig::recommended(&spec, Algo::Qrrl, 200_000);
+    let mut config = saver_core::algo::recommended(&spec, Algo::Qrrl, 200_000);
     config.seed = 1;
     train_with(&config, &dir, None, Arc::new(AtomicBool::new(false)), false).unwrap();
     let drawn = saver_run::histogram::write_for_run(&dir).unwrap().unwrap();

@@ -10,23 +10,33 @@ mod ppo;
 mod qnet_grad;
 mod qrrl;
 mod saver;
+mod saver_defaults;
 mod saver_grad;
 pub mod saver_signal;
 mod vtrace;
 
 pub use a2c::A2c;
+pub use a2c::RECOMMENDED_CUSTOM_A2C_LR;
 pub use fused::{threads_for, Loss};
-pub use ppo::Ppo;
+pub use ppo::{
+    Ppo, PRESET_PPO_ROLLOUT, RECOMMENDED_PPO_GRAD_CLIP, RECOMMENDED_PPO_LR, RECOMMENDED_PPO_ROLLOUT,
+};
 pub use qnet_grad::{quantile_net_grads, NetGrads};
+pub use qrrl::RECOMMENDED_QRRL_LR;
 pub use qrrl::{qrrl_actor_losses, Qrrl};
 pub use saver::{tau_tensors, GradPath, Saver};
+pub use saver_defaults::{
+    CUSTOM_SAVER_MU_RAW_PENALTY, CUSTOM_SAVER_PCPN_TUNE_LR, HIGH_DIM_ANGLE, HIGH_DIM_LOG_STD_MIN,
+    HIGH_DIM_PRETRAIN_BATCHES, RECOMMENDED_SAVER_LR,
+};
 pub use saver_grad::{
     policy_grads, saver_actor_losses, weighted_quantile_losses, InputGrad, PcpnGrad, SaverLosses,
 };
 pub(crate) use vtrace::{Vtrace, VTRACE_STATS};
 
 use crate::acting::PolicyFamily;
-use crate::config::{Algo, RunConfig};
+use crate::config::{preset_or_angle, Algo, PretrainConfig, RunConfig};
+use crate::env::EnvSpec;
 use crate::nets::{Gaussian, Pcpn};
 use crate::optim::Optimizer;
 use crate::rollout::Batch;
@@ -179,7 +189,8 @@ pub(crate) fn saved_number(numbers: &BTreeMap<String, u128>, key: &str) -> Resul
 /// algorithms that use one).
 pub type Build = fn(&RunConfig, Option<Pcpn>, &Device) -> Result<Box<dyn Algorithm>>;
 
-/// What an algorithm brings: its learner and its actors' behaviour policy.
+/// What an algorithm brings: its learner, its actors' behaviour policy, its defaults,
+/// its own checks of a config and the work of its update.
 #[derive(Clone, Copy)]
 pub struct Entry {
     /// The learner side, from the run's config (and the frozen PCPN, for algorithms
@@ -187,6 +198,14 @@ pub struct Entry {
     pub build: Build,
     /// The behaviour policy actors run, and what its rollouts record per step.
     pub policy: fn(&RunConfig) -> Arc<dyn PolicyFamily>,
+    /// Its defaults: what it changes in the paper's settings for `config.env`
+    /// ([`recommended`]; `--faithful` skips it).
+    pub recommend: fn(&mut RunConfig),
+    /// Its refusals of a config, beyond the checks every run gets ([`validate`]).
+    pub check: fn(&RunConfig) -> Result<()>,
+    /// FLOPs of one update on `b` steps of `t` trajectories (multiply-add = 2; a
+    /// trained dense layer 3× its forward, a frozen one 2×), for `saver bench`.
+    pub flops: fn(&RunConfig, usize, usize) -> f64,
 }
 
 /// The algorithms. Adding one: its files (an [`Algorithm`] and, unless it acts with an
@@ -198,6 +217,51 @@ pub fn entry(algo: Algo) -> Entry {
         Algo::Qrrl => qrrl::ENTRY,
         Algo::Ppo => ppo::ENTRY,
     }
+}
+
+/// The default settings of `algo` on `env` for `steps` steps: the paper's, with the
+/// recommended pretraining, and the algorithm's own defaults ([`Entry::recommend`]).
+pub fn recommended(env: &EnvSpec, algo: Algo, steps: u64) -> RunConfig {
+    let mut c = RunConfig::paper(env, algo, steps);
+    c.pretrain = PretrainConfig::recommended(preset_or_angle(env)).for_env(env);
+    (entry(algo).recommend)(&mut c);
+    c
+}
+
+/// Checks every field of `config` ([`RunConfig::check_fields`]) and what its algorithm
+/// refuses ([`Entry::check`]); the message names the field.
+pub fn validate(config: &RunConfig) -> Result<()> {
+    config.check_fields()?;
+    (entry(config.algo).check)(config)
+}
+
+/// An algorithm's [`Entry::check`] with nothing of its own to refuse.
+pub(crate) fn no_checks(_: &RunConfig) -> Result<()> {
+    Ok(())
+}
+
+/// The refusal of `--vtrace` by an algorithm it does not correct, and `why`.
+pub(crate) fn refuse_vtrace(config: &RunConfig, why: &str) -> Result<()> {
+    if !config.vtrace {
+        return Ok(());
+    }
+    Err(CoreError::Config(format!(
+        "vtrace: V-trace corrects A2C and SAVER; {} {why}",
+        config.algo.name()
+    )))
+}
+
+/// FLOPs of the dense layers `dims` (in, hidden..., out) on `rows` rows, forward only.
+pub fn mlp_flops(rows: usize, dims: &[usize]) -> f64 {
+    dims.windows(2)
+        .map(|w| 2.0 * (rows * w[0] * w[1]) as f64)
+        .sum()
+}
+
+/// FLOPs of one update of `config`'s algorithm on `b` steps of `t` trajectories
+/// ([`Entry::flops`]).
+pub fn update_flops(config: &RunConfig, b: usize, t: usize) -> f64 {
+    (entry(config.algo).flops)(config, b, t)
 }
 
 /// Builds the configured algorithm; SAVER needs its frozen PCPN.

@@ -124,7 +124,7 @@ mod tests {
 
     fn tuned_config(lr: f64) -> (EnvSpec, RunConfig) {
         let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
-        let mut config = RunConfig::recommended(&spec, Algo::Saver, 1);
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
         config.saver.pcpn_tune_lr = lr;
         (spec, config)
     }

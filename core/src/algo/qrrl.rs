@@ -69,10 +69,46 @@ pub struct Qrrl {
 }
 
 /// QRRL's registration ([`super::entry`]).
+/// Standalone QRRL's learning rate by default (with Adam; docs/ALGORITHM.md §14).
+pub const RECOMMENDED_QRRL_LR: f64 = 1e-3;
 pub(crate) const ENTRY: super::Entry = super::Entry {
     build: build_qrrl,
     policy: quantile_policy,
+    recommend,
+    check,
+    flops,
 };
+
+/// TF1 Adam at [`RECOMMENDED_QRRL_LR`]. Advantages stay raw: normalised, the noise of
+/// equally good actions is scaled up and drifts the bandit's two modes into one (2 of
+/// 5 seeds against 0 of 5 raw; docs/ALGORITHM.md §14).
+fn recommend(c: &mut RunConfig) {
+    c.optimizer = crate::config::OptimizerKind::Adam;
+    c.lr = RECOMMENDED_QRRL_LR;
+}
+
+/// The env's actions must suit a quantile policy; V-trace has no ratio to take.
+fn check(c: &RunConfig) -> Result<()> {
+    crate::config::check_quantile_policy(c.env.layout(), c.saver.qrrl_spread)?;
+    super::refuse_vtrace(
+        c,
+        "acts with a quantile policy, whose actions have no density to take a ratio of",
+    )
+}
+
+/// The quantile policy is trained (3× its layers) over the actions' dims, beside the
+/// critic.
+fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
+    use crate::nets::{PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
+    let (l, k) = (&config.env.layout(), config.saver.quantiles);
+    let [h0, h1, h2] = TRUNK;
+    let c = l.continuous;
+    let critic = 3.0 * super::mlp_flops(b + t, &[l.obs_dim, h0, h1, h2, 1]);
+    let shared = super::mlp_flops(b, &[l.obs_dim, PCPN_HIDDEN, c * PCPN_CHUNK]);
+    let heads = c as f64 * super::mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
+    let embed = (b * k * c * PCPN_CHUNK) as f64;
+    critic + 3.0 * (shared + heads) + 2.0 * embed
+}
 
 fn build_qrrl(config: &RunConfig, _pcpn: Option<Pcpn>, dev: &Device) -> Result<Box<dyn Algorithm>> {
     Ok(Box::new(Qrrl::new(config, dev)?))
@@ -277,7 +313,7 @@ mod tests {
 
     fn check_qrrl_gradients(vector: bool) {
         let spec = EnvSpec::new(EnvKind::Angle, 4).unwrap();
-        let config = RunConfig::recommended(&spec, Algo::Qrrl, 1);
+        let config = crate::algo::recommended(&spec, Algo::Qrrl, 1);
         let cfg = config.saver;
         let (b, o, a, k) = (21, 4, 4, cfg.quantiles);
         let dev = Device::Cpu;

@@ -128,6 +128,9 @@ pub fn mu_raw_penalty(raw: &Tensor, w: f64, entries: &[usize]) -> Result<Tensor>
 pub(crate) const ENTRY: super::Entry = super::Entry {
     build: build_saver,
     policy: super::gaussian_policy,
+    recommend: super::saver_defaults::recommend,
+    check: super::no_checks,
+    flops: super::saver_defaults::flops,
 };
 
 fn build_saver(config: &RunConfig, pcpn: Option<Pcpn>, dev: &Device) -> Result<Box<dyn Algorithm>> {

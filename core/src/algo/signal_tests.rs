@@ -44,7 +44,7 @@ fn the_predicted_target_does_not_see_an_error_in_the_observed_change() {
     let clean = batch(&spec);
     let mut shifted = clean.clone();
     shifted.state_delta.iter_mut().for_each(|v| *v += 0.05);
-    let mut config = RunConfig::recommended(&spec, Algo::Saver, 1);
+    let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
     config.saver.target = DeltaTarget::Observed;
     assert_ne!(
         agent_after_one_update(&config, &clean),
@@ -124,8 +124,8 @@ fn signal_stats_tell_an_exact_pcpn_from_one_whose_error_swamps_the_action() {
 #[test]
 fn the_predicted_target_is_refused_for_an_env_with_a_choice() {
     let spec = EnvSpec::new(EnvKind::Select, 2).unwrap();
-    let mut config = RunConfig::recommended(&spec, Algo::Saver, 1);
+    let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
     config.saver.target = DeltaTarget::Predicted;
-    let err = config.validate().unwrap_err().to_string();
+    let err = crate::algo::validate(&config).unwrap_err().to_string();
     assert!(err.contains("saver.target"), "{err}");
 }

@@ -335,7 +335,7 @@ fn saver_bootstraps_at_a_timeout_only_when_asked() {
     batch.timeouts = vec![1];
     batch.timeout_obs = vec![0.9, -0.8];
     let stats = |bootstrap: bool, batch: &crate::rollout::Batch| {
-        let mut config = RunConfig::recommended(&spec, Algo::Saver, 1);
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
         config.bootstrap_timeout = bootstrap;
         let pcpn = random_pcpn(&l, DType::F32);
         let mut saver = Saver::new(&config, pcpn, &Device::Cpu).unwrap();

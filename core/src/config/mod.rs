@@ -17,7 +17,7 @@ pub use pretrain::{
 };
 pub(crate) use unbounded::{inf_is_none, neg_inf_is_none, zero_is_none};
 
-use crate::env::{EnvKind, EnvSpec};
+use crate::env::EnvSpec;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 
@@ -157,64 +157,13 @@ pub struct RunConfig {
     pub pcpn_sha256: Option<String>,
 }
 
-/// SAVER's learning rate by default (with Adam; the paper's is 0.01 with RMSProp).
-/// 3e-4 before: at d = 16 it left SAVER at a mean length of 1000 for 2.56 M steps,
-/// where 1e-3 moves every coordinate toward the goal ~2x as fast (results/README.md).
-pub const RECOMMENDED_SAVER_LR: f64 = 1e-3;
 /// QRRL's [`SaverConfig::qrrl_spread`] by default: the initial policy is U(−1, 1), the
 /// env's whole action range (with 0.637, the spread of the Gaussian's initial σ = e⁻¹,
 /// the bandit's optima at ±0.75 lay outside it and seed 0 settled on the decoy;
 /// docs/ALGORITHM.md §14).
 pub const QRRL_SPREAD: f64 = 1.0;
-/// Standalone QRRL's learning rate by default (with Adam; docs/ALGORITHM.md §14).
-pub const RECOMMENDED_QRRL_LR: f64 = 1e-3;
-/// A2C's learning rate on a custom env (with the bounded head; `recommended`).
-pub const RECOMMENDED_CUSTOM_A2C_LR: f64 = 1e-3;
-/// SAVER's saturation penalty ([`SaverConfig::mu_raw_penalty`]) on a custom env: in the
-/// inertial envs measured (issue 31) μ ran into the tanh bound and stayed there (the
-/// point mass: 16 % / 42 % of rows at the bound by 300 k steps, 100 % on a seed that
-/// collapsed); with the wall the point mass reaches 0.93 mean success over five seeds
-/// (0.79 without, A2C 0.84) and Reacher ends nearer the target than A2C on 4 of 5
-/// (results/README.md, "Inertial envs").
-pub const CUSTOM_SAVER_MU_RAW_PENALTY: f64 = 0.1;
-/// The PCPN's own training on the policy's steps ([`SaverConfig::pcpn_tune_lr`]) on a
-/// custom env: a PCPN pretrained on random walks errs most where a trained policy goes
-/// (the point mass: its error on the steps taken grew from 4.7 to 15.7 times the
-/// action's effect over 300 k steps; tuned at 1e-3 it fell to 0.3), and the learner
-/// cannot send the walks of an env it cannot reset at will there. On the point mass
-/// (one PCPN, five seeds) success rose from 0.82 frozen to 0.95 at 1e-4 (0.96 at 1e-3);
-/// on Reacher-v5 (one PCPN, seeds 0-2) from 0.53 frozen to 0.94 at 1e-4, while 1e-3,
-/// whose steps jitter the PCPN's output by more than an action effect of ~1 % of Δp's
-/// spread, reached 0.53 (results/README.md, "A PCPN that follows the policy").
-pub const CUSTOM_SAVER_PCPN_TUNE_LR: f64 = 1e-4;
 /// PCPN pretraining batches by default (the paper's: 100,000 for angle).
 pub const RECOMMENDED_PRETRAIN_BATCHES: u64 = 5_000;
-/// From this dimension on, SAVER's default on the angle env is
-/// [`HIGH_DIM_PRETRAIN_BATCHES`] and [`HIGH_DIM_LOG_STD_MIN`] (issue 19,
-/// results/README.md): with the 5,000-batch PCPN and σ free to fall, the angle entry
-/// of a pair sinks to its pole (the pair then moves along one axis) and d = 8 and 16
-/// lose what they learned.
-pub const HIGH_DIM_ANGLE: usize = 8;
-/// Pretraining batches of SAVER's default on angle from [`HIGH_DIM_ANGLE`] on: the
-/// paper's 100,000 (its PCPN's gradient is the only signal; 3,000 → 100,000 batches
-/// take its in-pair cosine at d = 16 from 0.67 to 0.83, `saver diagnose pcpn`).
-pub const HIGH_DIM_PRETRAIN_BATCHES: u64 = 100_000;
-/// The floor on log σ of SAVER's default on angle from [`HIGH_DIM_ANGLE`] on (σ ≥ 0.2:
-/// a pair at its pole gets out in proportion to σ, `bench/angle_pole.py`).
-pub const HIGH_DIM_LOG_STD_MIN: f64 = -1.6;
-/// PPO's learning rate (Adam; Stable-Baselines3's).
-pub const RECOMMENDED_PPO_LR: f64 = 3e-4;
-/// PPO's rollout length on a custom env: Stable-Baselines3's `n_steps`, 2,048 steps per
-/// env and update (on Reacher-v5, 8 envs, seed 0, 1 M steps: return -5.4 and success
-/// 1.00 with it, against -19.2 and 0.34 with 128, whose 1,024-step batches let σ
-/// collapse to the floor and each update's KL grow past 0.5; results/README.md, "PPO").
-pub const RECOMMENDED_PPO_ROLLOUT: u32 = 2048;
-/// PPO's rollout length on a preset: 16 actors make 2,048-step batches (angle d = 4,
-/// seed 0, 1 M steps: mean length 11.8 with 128, 20.5 with 2,048, whose 32,768-step
-/// batches give 31 updates in the run).
-pub const PRESET_PPO_ROLLOUT: u32 = 128;
-/// PPO's gradient-norm clip (Stable-Baselines3's `max_grad_norm`).
-pub const RECOMMENDED_PPO_GRAD_CLIP: f64 = 0.5;
 /// Async mode's policy lag unless set.
 pub const DEFAULT_MAX_LAG: u64 = 4;
 
@@ -267,67 +216,10 @@ impl RunConfig {
         }
     }
 
-    /// SAVER with the smallest set of changes that make it learn (results/README.md
-    /// has the ablations): TF1 Adam at 1e-3 instead of RMSProp at the paper's rate,
-    /// μ = tanh(raw) and log σ in [-4.6, 0] so the actions stay where the PCPN was
-    /// pretrained, the vector advantage centred per dimension over each batch and
-    /// divided by one standard deviation over all dimensions, and a PCPN pretrained
-    /// 5,000 batches (its held-out loss settles by ~1,000). A2C keeps the paper's
-    /// settings on the paper's envs; on a custom env (for which the paper has none) it
-    /// takes SAVER's bounded head and 1e-3: on Reacher-v5 the paper's linear mean ran to
-    /// |μ| ≈ 250 (clipped actions, bang-bang) and did not learn in 1 M steps (final
-    /// distance 0.160 → 0.163), the bounded head at 1e-3 did (0.177 → 0.136;
-    /// results/README.md).
-    pub fn recommended(env: &EnvSpec, algo: Algo, steps: u64) -> Self {
-        let mut c = Self::paper(env, algo, steps);
-        c.pretrain = PretrainConfig::recommended(preset_or_angle(env)).for_env(env);
-        if algo == Algo::Qrrl {
-            // Advantages stay raw: normalised, the noise of equally good actions is
-            // scaled up and drifts the bandit's two modes into one (2 of 5 seeds
-            // against 0 of 5 raw; docs/ALGORITHM.md §14).
-            c.optimizer = OptimizerKind::Adam;
-            c.lr = RECOMMENDED_QRRL_LR;
-        }
-        if algo == Algo::Saver {
-            c.optimizer = OptimizerKind::Adam;
-            c.lr = RECOMMENDED_SAVER_LR;
-            c.head = HeadConfig::IN_PCPN_DOMAIN;
-            c.saver.adv_norm = true;
-            c.saver.adv_norm_joint = true;
-            if env.kind() == Some(EnvKind::Angle) && env.dim() >= HIGH_DIM_ANGLE {
-                c.pretrain.batches = HIGH_DIM_PRETRAIN_BATCHES;
-                c.head.log_std_bounds = c
-                    .head
-                    .log_std_bounds
-                    .map(|(_, max)| (HIGH_DIM_LOG_STD_MIN, max));
-            }
-        }
-        if algo == Algo::Saver && env.kind().is_none() {
-            c.saver.mu_raw_penalty = CUSTOM_SAVER_MU_RAW_PENALTY;
-            c.saver.pcpn_tune_lr = CUSTOM_SAVER_PCPN_TUNE_LR;
-        }
-        if algo == Algo::Ppo {
-            // Not in the paper: Stable-Baselines3's PPO settings, with the bounded head
-            // (μ = tanh, log σ in [-4.6, 0]) and bootstrapped timeouts.
-            c.optimizer = OptimizerKind::Adam;
-            c.lr = RECOMMENDED_PPO_LR;
-            c.rollout = match env.kind() {
-                Some(_) => PRESET_PPO_ROLLOUT,
-                None => RECOMMENDED_PPO_ROLLOUT,
-            };
-            c.grad_clip = Some(RECOMMENDED_PPO_GRAD_CLIP);
-            c.head = HeadConfig::IN_PCPN_DOMAIN;
-            c.bootstrap_timeout = true;
-        }
-        if algo == Algo::A2c && env.kind().is_none() {
-            c.head = HeadConfig::IN_PCPN_DOMAIN;
-            c.lr = RECOMMENDED_CUSTOM_A2C_LR;
-        }
-        c
-    }
-
-    /// Checks every field; the message names the field.
-    pub fn validate(&self) -> Result<()> {
+    /// Checks every field; the message names the field. What an algorithm refuses on
+    /// top ([`crate::algo::Entry::check`]) is checked by [`crate::algo::validate`],
+    /// which calls this first: use that one.
+    pub fn check_fields(&self) -> Result<()> {
         let bad = |field: &str, why: String| Err(CoreError::Config(format!("{field}: {why}")));
         if self.steps == 0 {
             return bad("steps", "must be >= 1".into());
@@ -397,19 +289,6 @@ impl RunConfig {
                 return bad(field, format!("{v} must be finite and > 0"));
             }
         }
-        if self.vtrace && !matches!(self.algo, Algo::A2c | Algo::Saver) {
-            return bad(
-                "vtrace",
-                format!(
-                    "V-trace corrects A2C and SAVER; {} {}",
-                    self.algo.name(),
-                    match self.algo {
-                        Algo::Ppo => "already weighs each step by π/π_old of the policy that acted",
-                        _ => "acts with a quantile policy, whose actions have no density to take a ratio of",
-                    }
-                ),
-            );
-        }
         let s = &self.saver;
         if !(1..=1024).contains(&s.quantiles) {
             return bad(
@@ -472,9 +351,6 @@ impl RunConfig {
                     ),
                 );
             }
-        }
-        if self.algo == Algo::Qrrl {
-            check_quantile_policy(self.env.layout(), self.saver.qrrl_spread)?;
         }
         if self.saver.qrrl_vector && !(self.algo == Algo::Qrrl && self.env.actions_aligned()) {
             return bad(
@@ -545,97 +421,54 @@ pub fn check_quantile_policy(layout: crate::env::EnvLayout, spread: f64) -> Resu
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::EnvKind;
 
     #[test]
     fn paper_defaults_validate_and_bad_fields_are_named() {
         let env = EnvSpec::new(EnvKind::Angle, 4).unwrap();
         let ok = RunConfig::paper(&env, Algo::Saver, 1000);
-        ok.validate().unwrap();
+        crate::algo::validate(&ok).unwrap();
         assert_eq!(ok.lr, 0.01);
         assert_eq!(ok.pretrain.lr, 0.001);
         assert_eq!(ok.batch_transitions(), 128);
         let mut c = ok.clone();
         c.gamma = 1.5;
-        assert!(c.validate().unwrap_err().to_string().contains("gamma"));
+        assert!(crate::algo::validate(&c)
+            .unwrap_err()
+            .to_string()
+            .contains("gamma"));
         let mut c = ok.clone();
         c.lr = f64::NAN;
-        assert!(c.validate().unwrap_err().to_string().contains("lr"));
+        assert!(crate::algo::validate(&c)
+            .unwrap_err()
+            .to_string()
+            .contains("lr"));
         let mut c = ok.clone();
         c.max_lag = Some(2);
-        assert!(c.validate().unwrap_err().to_string().contains("max_lag"));
-        let mut c = RunConfig::recommended(&env, Algo::Saver, 1000);
+        assert!(crate::algo::validate(&c)
+            .unwrap_err()
+            .to_string()
+            .contains("max_lag"));
+        let mut c = crate::algo::recommended(&env, Algo::Saver, 1000);
         c.saver.mu_raw_penalty_entries = vec![1, 3];
-        assert!(c.validate().unwrap_err().to_string().contains("without"));
+        assert!(crate::algo::validate(&c)
+            .unwrap_err()
+            .to_string()
+            .contains("without"));
         c.saver.mu_raw_penalty = 0.1;
-        c.validate().unwrap();
+        crate::algo::validate(&c).unwrap();
         c.saver.mu_raw_penalty_entries = vec![1, 4];
-        let e = c.validate().unwrap_err().to_string();
+        let e = crate::algo::validate(&c).unwrap_err().to_string();
         assert!(e.contains("entry 4: angle-d4 has 4 mean entries"), "{e}");
         c.saver.mu_raw_penalty_entries = vec![3, 3];
-        assert!(c.validate().unwrap_err().to_string().contains("twice"));
+        assert!(crate::algo::validate(&c)
+            .unwrap_err()
+            .to_string()
+            .contains("twice"));
         assert!(EnvSpec::new(EnvKind::Angle, 3)
             .unwrap_err()
             .to_string()
             .contains("even"));
-    }
-
-    /// SAVER's default on angle takes the paper's pretraining and a σ floor from
-    /// d = 8 on, and nowhere else (d = 4, select, arm and A2C keep theirs).
-    #[test]
-    fn saver_on_high_dim_angle_defaults_to_the_long_pcpn_and_a_sigma_floor() {
-        let cfg = |kind, d, algo| RunConfig::recommended(&EnvSpec::new(kind, d).unwrap(), algo, 1);
-        for d in [8, 16] {
-            let c = cfg(EnvKind::Angle, d, Algo::Saver);
-            assert_eq!(c.pretrain.batches, 100_000);
-            assert_eq!(c.head.log_std_bounds, Some((-1.6, 0.0)));
-            c.validate().unwrap();
-        }
-        let low = cfg(EnvKind::Angle, 4, Algo::Saver);
-        assert_eq!(low.pretrain.batches, RECOMMENDED_PRETRAIN_BATCHES);
-        assert_eq!(low.head.log_std_bounds, Some((-4.6, 0.0)));
-        for c in [
-            cfg(EnvKind::Angle, 16, Algo::A2c),
-            cfg(EnvKind::Select, 6, Algo::Saver),
-        ] {
-            assert_ne!(
-                c.head.log_std_bounds.map(|b| b.0),
-                Some(-1.6),
-                "{:?}",
-                c.env
-            );
-        }
-    }
-
-    /// The saturation wall and the tuned PCPN are SAVER's defaults on custom envs only:
-    /// every preset (and so results/fig3-5) keeps the paper's 0, as does `--faithful`,
-    /// and A2C never has them.
-    #[test]
-    fn saver_on_a_custom_env_defaults_to_the_saturation_wall_and_a_tuned_pcpn() {
-        let custom = EnvSpec::unit_custom("pointmass", 0.2).unwrap();
-        let c = RunConfig::recommended(&custom, Algo::Saver, 1);
-        assert_eq!(c.saver.mu_raw_penalty, CUSTOM_SAVER_MU_RAW_PENALTY);
-        assert_eq!(c.saver.pcpn_tune_lr, CUSTOM_SAVER_PCPN_TUNE_LR);
-        assert_eq!(
-            RunConfig::paper(&custom, Algo::Saver, 1).saver.pcpn_tune_lr,
-            0.0
-        );
-        c.validate().unwrap();
-        assert_eq!(
-            RunConfig::recommended(&custom, Algo::A2c, 1)
-                .saver
-                .mu_raw_penalty,
-            0.0
-        );
-        for (kind, d) in [
-            (EnvKind::Angle, 4),
-            (EnvKind::Angle, 16),
-            (EnvKind::Select, 4),
-            (EnvKind::Arm, 2),
-        ] {
-            let c = RunConfig::recommended(&EnvSpec::new(kind, d).unwrap(), Algo::Saver, 1);
-            assert_eq!(c.saver.mu_raw_penalty, 0.0, "{kind:?}");
-            assert_eq!(c.saver.pcpn_tune_lr, 0.0, "{kind:?}");
-        }
     }
 
     /// Every field survives TOML and JSON, the unbounded ones (inf, κ = 0) included.
@@ -643,7 +476,7 @@ mod tests {
     fn toml_and_json_forms_read_back_equal() {
         let env = EnvSpec::new(EnvKind::Select, 5).unwrap();
         let faithful = RunConfig::paper(&env, Algo::Saver, 1000);
-        let mut bounded = RunConfig::recommended(&env, Algo::Saver, 1000);
+        let mut bounded = crate::algo::recommended(&env, Algo::Saver, 1000);
         bounded.saver.kappa = Some(0.01);
         bounded.grad_clip = Some(0.5);
         bounded.mode = Mode::Async;

@@ -2,7 +2,8 @@
 //! default configs themselves (so it cannot drift from them).
 
 use super::{dotted, DEFAULT_STEPS};
-use crate::config::{Algo, RunConfig, HIGH_DIM_ANGLE};
+use crate::algo::{recommended, HIGH_DIM_ANGLE};
+use crate::config::{Algo, RunConfig};
 use crate::env::{EnvKind, EnvSpec};
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
@@ -20,7 +21,7 @@ struct Defaults {
     high_dim: Settings,
     /// SAVER's default on a custom env (one with continuous actions).
     custom: Settings,
-    /// QRRL's and PPO's defaults on angle d=4, by label.
+    /// Every other algorithm's defaults on angle d=4, by label.
     more: Vec<(&'static str, Settings)>,
 }
 
@@ -31,8 +32,8 @@ fn defaults() -> &'static Defaults {
         let tables = |kind: EnvKind, dim: usize| -> Vec<Settings> {
             let env = preset(kind, dim);
             [
-                RunConfig::recommended(&env, Algo::A2c, DEFAULT_STEPS),
-                RunConfig::recommended(&env, Algo::Saver, DEFAULT_STEPS),
+                recommended(&env, Algo::A2c, DEFAULT_STEPS),
+                recommended(&env, Algo::Saver, DEFAULT_STEPS),
                 RunConfig::paper(&env, Algo::Saver, DEFAULT_STEPS),
             ]
             .iter()
@@ -42,17 +43,19 @@ fn defaults() -> &'static Defaults {
         let angle = tables(EnvKind::Angle, 4);
         let mut others = tables(EnvKind::Select, 4);
         others.extend(tables(EnvKind::Arm, 2));
-        let high_dim = dotted(&RunConfig::recommended(
+        let high_dim = dotted(&recommended(
             &preset(EnvKind::Angle, HIGH_DIM_ANGLE),
             Algo::Saver,
             DEFAULT_STEPS,
         ));
         let custom = EnvSpec::unit_custom("custom", 1.0).expect("a custom env");
-        let custom = dotted(&RunConfig::recommended(&custom, Algo::Saver, DEFAULT_STEPS));
-        let more = [Algo::Qrrl, Algo::Ppo]
-            .into_iter()
+        let custom = dotted(&recommended(&custom, Algo::Saver, DEFAULT_STEPS));
+        let more = <Algo as clap::ValueEnum>::value_variants()
+            .iter()
+            .copied()
+            .filter(|a| !matches!(a, Algo::A2c | Algo::Saver))
             .map(|a| {
-                let c = RunConfig::recommended(&preset(EnvKind::Angle, 4), a, DEFAULT_STEPS);
+                let c = recommended(&preset(EnvKind::Angle, 4), a, DEFAULT_STEPS);
                 (a.name(), dotted(&c))
             })
             .collect();

@@ -342,7 +342,7 @@ impl RunSettings {
         let base = if self.faithful || file.faithful {
             RunConfig::paper(&env, algo, steps)
         } else {
-            RunConfig::recommended(&env, algo, steps)
+            crate::algo::recommended(&env, algo, steps)
         };
         let mut table = table_of(&base)?;
         top.remove("faithful");
@@ -356,7 +356,7 @@ impl RunSettings {
             );
         }
         let config: RunConfig = toml::Value::Table(table).try_into().map_err(config_err)?;
-        config.validate()?;
+        crate::algo::validate(&config)?;
         Ok(config)
     }
 
@@ -386,7 +386,7 @@ mod tests {
     #[test]
     fn written_config_resolves_back_equal() {
         let env = EnvSpec::new(EnvKind::Select, 5).unwrap();
-        let mut bounded = RunConfig::recommended(&env, Algo::Saver, 1000);
+        let mut bounded = crate::algo::recommended(&env, Algo::Saver, 1000);
         bounded.saver.kappa = Some(0.01);
         bounded.seed = 9;
         bounded.grad_clip = Some(0.5);
@@ -407,7 +407,7 @@ mod tests {
             max_change: 0.02,
         };
         let custom = EnvSpec::custom("maze", layout, bounds).unwrap();
-        let custom = RunConfig::recommended(&custom, Algo::Saver, 1000);
+        let custom = crate::algo::recommended(&custom, Algo::Saver, 1000);
         for c in [bounded, RunConfig::paper(&env, Algo::Saver, 1000), custom] {
             let p = temp("run.toml");
             std::fs::write(&p, c.to_toml()).unwrap();

@@ -6,12 +6,12 @@ use crate::env::{EnvKind, EnvSpec};
 /// PPO on angle d = 2 with `epochs` passes of minibatches of `size` and clip ε.
 fn config(epochs: usize, size: usize, clip: f64) -> RunConfig {
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
-    let mut c = RunConfig::recommended(&spec, Algo::Ppo, 1);
+    let mut c = crate::algo::recommended(&spec, Algo::Ppo, 1);
     c.ppo.epochs = epochs;
     c.ppo.minibatch_size = size;
     c.ppo.clip = clip;
     c.lr = 1e-3;
-    c.validate().unwrap();
+    crate::algo::validate(&c).unwrap();
     c
 }
 

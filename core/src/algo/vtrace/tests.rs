@@ -60,13 +60,14 @@ fn weights(a: &dyn Algorithm) -> Vec<f32> {
 #[test]
 fn vtrace_is_the_plain_update_on_policy_and_corrects_off_policy() {
     let a2c = RunConfig::paper(&EnvSpec::new(EnvKind::Angle, 2).unwrap(), Algo::A2c, 1);
-    let saver = RunConfig::recommended(&EnvSpec::new(EnvKind::Select, 3).unwrap(), Algo::Saver, 1);
+    let saver =
+        crate::algo::recommended(&EnvSpec::new(EnvKind::Select, 3).unwrap(), Algo::Saver, 1);
     for plain in [a2c, saver] {
         let corrected = RunConfig {
             vtrace: true,
             ..plain.clone()
         };
-        corrected.validate().unwrap();
+        crate::algo::validate(&corrected).unwrap();
         let (on, off) = (batch(&plain, 0.0), batch(&plain, 0.3));
         let mut p = learner(&plain);
         let mut c = learner(&corrected);
@@ -121,9 +122,9 @@ fn vtrace_is_the_plain_update_on_policy_and_corrects_off_policy() {
 fn vtrace_is_refused_where_it_does_not_apply() {
     let env = EnvSpec::new(EnvKind::Angle, 2).unwrap();
     for (algo, why) in [(Algo::Ppo, "π/π_old"), (Algo::Qrrl, "no density")] {
-        let mut c = RunConfig::recommended(&env, algo, 1);
+        let mut c = crate::algo::recommended(&env, algo, 1);
         c.vtrace = true;
-        let e = c.validate().unwrap_err().to_string();
+        let e = crate::algo::validate(&c).unwrap_err().to_string();
         assert!(e.contains("vtrace") && e.contains(why), "{e}");
     }
 }
