@@ -1,17 +1,20 @@
 #!/usr/bin/env python3
-"""How fast a Python actor steps its envs, against the bare env, in one run.
+"""How fast Python actors step their envs, against the bare env, in one run.
 
-    python3 bench/python_actor_speed.py target/release/saver [--envs 8] [--steps 100000]
+    python3 bench/python_actor_speed.py target/release/saver [--envs 16] [--steps 100000]
+        [--env-processes N] [--actors P]
 
-1. bare: the actor's E Reacher-v5 envs stepped with uniform random actions (reset at
-   the end of each episode), nothing else;
-2. actor: the same E envs in a saver_actor.Actor with the policy, the bookkeeping and
-   the rollout stream, against a real `saver learner` (A2C, sync: while the learner
-   updates, the actor waits and does not compete for the cores). Reported per second
-   of the actor's time not spent waiting for weights (its own cost), and per wall
-   second.
+1. bare: E Reacher-v5 envs stepped with uniform random actions (reset at the end of
+   each episode) in one process, nothing else;
+2. actor: P saver_actor.Actor processes of E/P envs each (their envs stepped in this
+   process, or in N worker processes each with --env-processes), with the policy, the
+   bookkeeping and the rollout stream, against a real `saver learner` (A2C, sync:
+   while the learner updates, the actors wait for its weights and do not compete for
+   the cores). Reported per second of the actors' time not spent waiting for weights
+   (their own cost), and per wall second, both against the bare rate.
 """
 import argparse
+import multiprocessing as mp
 import os
 import socket
 import subprocess
@@ -19,50 +22,75 @@ import tempfile
 import time
 
 import numpy as np
-
 from saver_actor import Actor, Connection
 from saver_actor.examples import reacher
 
 ap = argparse.ArgumentParser()
 ap.add_argument("saver", nargs="?", default="target/release/saver")
-ap.add_argument("--envs", type=int, default=8)
+ap.add_argument("--envs", type=int, default=16, help="envs in all (split over --actors)")
 ap.add_argument("--steps", type=int, default=100_000)
+ap.add_argument("--env-processes", type=int, default=0, help="each actor's env worker processes (0: none)")
+ap.add_argument("--actors", type=int, default=1, help="actor processes")
 args = ap.parse_args()
 make_env, decl = reacher()
 
-envs = [make_env() for _ in range(args.envs)]
-for i, e in enumerate(envs):
-    e.reset(seed=i)
-rng = np.random.default_rng(0)
-n = args.steps // args.envs
-t = time.perf_counter()
-for _ in range(n):
-    acts = rng.uniform(-1, 1, (args.envs, 2)).astype(np.float32)
-    for e, a in zip(envs, acts):
-        _, _, term, trunc, _ = e.step(a)
-        if term or trunc:
-            e.reset()
-bare = n * args.envs / (time.perf_counter() - t)
 
+def bare_rate(n_envs, steps):
+    envs = [make_env() for _ in range(n_envs)]
+    for i, e in enumerate(envs):
+        e.reset(seed=i)
+    rng = np.random.default_rng(0)
+    n = steps // n_envs
+    t = time.perf_counter()
+    for _ in range(n):
+        acts = rng.uniform(-1, 1, (n_envs, 2)).astype(np.float32)
+        for e, a in zip(envs, acts):
+            _, _, term, trunc, _ = e.step(a)
+            if term or trunc:
+                e.reset()
+    return n * n_envs / (time.perf_counter() - t)
+
+
+def act(url, n_envs, out):
+    actor = Actor(make_env, decl, Connection(url), n_envs=n_envs, give_up=30, log=lambda m: None,
+                  env_processes=args.env_processes)
+    try:
+        s = actor.run()
+    finally:
+        actor.close()
+    out.put((s.steps, s.seconds, s.wait_seconds, s.env_seconds))
+
+
+bare = bare_rate(args.envs, args.steps)
 tmp = tempfile.mkdtemp(prefix="saver-speed-")
 cfg = os.path.join(tmp, "reacher.toml")
 open(cfg, "w").write("max_episode_steps = 50\n" + decl.toml())
 with socket.socket() as s:
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
-learner = subprocess.Popen([args.saver, "learner", "--config", cfg, "--actors", "1",
+learner = subprocess.Popen([args.saver, "learner", "--config", cfg, "--actors", str(args.actors),
                             "--steps", str(args.steps), "--out", os.path.join(tmp, "run"), "--exit-when-done",
                             "--listen", f"127.0.0.1:{port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 try:
-    actor = Actor(make_env, decl, Connection(f"http://127.0.0.1:{port}"), n_envs=args.envs, give_up=30,
-                  log=lambda m: None)
-    s = actor.run()
+    ctx = mp.get_context("fork")
+    out = ctx.Queue()
+    procs = [ctx.Process(target=act, args=(f"http://127.0.0.1:{port}", args.envs // args.actors, out))
+             for _ in range(args.actors)]
+    for p in procs:
+        p.start()
+    results = [out.get(timeout=3600) for _ in procs]
+    for p in procs:
+        p.join()
 finally:
     learner.wait(60)
-active = s.steps / (s.seconds - s.wait_seconds)
-wall = s.steps / s.seconds
-print(f"Reacher-v5, {args.envs} envs, {s.steps} steps")
-print(f"  bare env:   {bare:8.0f} steps/s")
-print(f"  actor:      {active:8.0f} steps/s of its own time ({active / bare:.0%} of bare); "
-      f"{wall:.0f} per wall second ({wall / bare:.0%}; {s.wait_seconds:.1f} s of {s.seconds:.1f} waiting for weights)")
-print(f"  inside env.step: {s.env_seconds:.1f} s of the actor's {s.seconds - s.wait_seconds:.1f} s")
+steps = sum(r[0] for r in results)
+wall = steps / max(r[1] for r in results)
+own = steps / max(r[1] - r[2] for r in results)
+waiting = max(r[2] for r in results)
+print(f"Reacher-v5, {args.envs} envs in {args.actors} actor process(es), env processes per actor "
+      f"{args.env_processes}, {steps} steps")
+print(f"  bare env:   {bare:8.0f} steps/s (one process)")
+print(f"  actors:     {own:8.0f} steps/s of their own time ({own / bare:.0%} of bare); {wall:.0f} per wall second "
+      f"({wall / bare:.0%}; up to {waiting:.1f} s waiting for weights)")
+print(f"  inside env.step: {max(r[3] for r in results):.1f} s of the actors' "
+      f"{max(r[1] - r[2] for r in results):.1f} s")

@@ -88,6 +88,8 @@ def main(argv=None):
     a = cmds["act"]
     a.add_argument("--learner", default="http://127.0.0.1:50051")
     a.add_argument("--envs", type=int, default=1, help="env instances stepped per rollout")
+    a.add_argument("--env-processes", type=int, default=0, metavar="N",
+                   help="step the envs in N worker processes at once (0: in this process, one after another)")
     a.add_argument("--actor-name", help="name in the learner's logs")
     a.add_argument("--pcpn-samples", metavar="URL", help="also answer this pcpn-trainer's demands for samples")
     a.add_argument("--connect-timeout", type=float, default=600.0)
@@ -149,18 +151,23 @@ def main(argv=None):
                              log=lambda m: print(m, file=sys.stderr))
             print(f"the run finished; best mean return {best} in {args.out}", file=sys.stderr)
             return 0
+        # The env workers (if any) start first: a process with gRPC threads should not fork.
+        actor = Actor(make_env, decl, connection(args.learner, args), n_envs=args.envs, name=args.actor_name,
+                      give_up=args.connect_timeout, log=lambda m: print(m, file=sys.stderr),
+                      env_processes=args.env_processes)
         if args.pcpn_samples:
             conn = connection(args.pcpn_samples, args)
             threading.Thread(target=provide_samples, args=(make_env, decl, conn),
                              kwargs={"seed": args.seed, "log": lambda m: print(m, file=sys.stderr)},
                              daemon=True).start()
-        actor = Actor(make_env, decl, connection(args.learner, args), n_envs=args.envs, name=args.actor_name,
-                      give_up=args.connect_timeout, log=lambda m: print(m, file=sys.stderr))
-        s = actor.run()
+        try:
+            s = actor.run()
+        finally:
+            actor.close()
         print(f"{actor.name}: run finished; {s.rollouts} rollouts, {s.steps} env steps, {s.episodes} episodes "
               f"({s.successes} successes) in {s.seconds:.1f} s", file=sys.stderr)
         return 0
-    except (EnvError, Refused, RuntimeError) as e:
+    except (EnvError, Refused, RuntimeError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 

@@ -11,7 +11,7 @@ import random
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Callable, List, Optional
 
 import grpc
 import numpy as np
@@ -19,7 +19,8 @@ from safetensors.numpy import load as load_safetensors
 
 from ._proto import saver_pb2 as pb
 from ._proto import saver_pb2_grpc as pb_grpc
-from .env import EnvDecl, EnvError
+from .env import ActionMap, EnvDecl, EnvError
+from .envset import LocalEnvs, ProcessEnvs
 from .policy import policy_for
 
 MAX_MESSAGE = 64 << 20
@@ -198,14 +199,18 @@ class Actor:
     """
 
     def __init__(self, make_env: Callable, decl: EnvDecl, conn: Connection, n_envs: int = 1,
-                 name: Optional[str] = None, give_up: float = 600.0, log: Callable = print):
+                 name: Optional[str] = None, give_up: float = 600.0, log: Callable = print,
+                 env_processes: int = 0):
         if n_envs < 1:
             raise ValueError("n_envs must be >= 1")
         self.make_env, self.decl, self.conn = make_env, decl, conn
         self.n_envs = n_envs
         self.name = name or f"py-actor-{random.getrandbits(24):06x}"
         self.give_up, self.log = give_up, log
-        self.envs = [make_env() for _ in range(n_envs)]
+        # env_processes > 0: the envs step in that many worker processes at once.
+        self.envs = (ProcessEnvs(make_env, n_envs, decl.obs_dim, env_processes) if env_processes > 0
+                     else LocalEnvs(make_env, n_envs, decl.obs_dim))
+        self.actions = ActionMap(decl.continuous, decl.action_dim, self.envs.action_space)
         self.stop = threading.Event()
         self.summary = Summary()
 
@@ -217,8 +222,7 @@ class Actor:
         s = reply.settings
         self.decl.check_run(s.env)
         limit = s.max_episode_steps
-        for env in self.envs:
-            own = getattr(getattr(env, "spec", None), "max_episode_steps", None)
+        for own in self.envs.limits:
             if own is not None and own < limit:
                 raise EnvError(
                     f"{self.decl.name}: the env ends its episodes at {own} steps (its TimeLimit) but the run's "
@@ -236,7 +240,7 @@ class Actor:
         rollouts = _Rollouts(stub, self.conn, reply.actor_id, reply.session)
         try:
             # Fresh envs for every registration: the learner counts episodes from seq 0.
-            obs = np.stack([self._reset(i, s.seed, reply.actor_id) for i in range(e)])
+            obs = np.stack(self._reset(range(e), s.seed, reply.actor_id))
             running = np.zeros(e, dtype=np.int64)
             returns = np.zeros(e, dtype=np.float32)
             want, seq, interval, last = 0, 0, 0.01, None
@@ -268,18 +272,21 @@ class Actor:
             rollouts.close()
             weights.close()
 
-    def _reset(self, i: int, seed: Optional[int] = None, actor_id: int = 0) -> np.ndarray:
-        """Resets env i: seeded from (run seed, actor id, i) at a registration, from its
-        own stream after that (Gymnasium's way: seed once)."""
+    def _reset(self, indices, seed: Optional[int] = None, actor_id: int = 0) -> List[np.ndarray]:
+        """Resets the envs at `indices`: seeded from (run seed, actor id, i) at a
+        registration, from their own streams after that (Gymnasium's way: seed once)."""
         t = time.perf_counter()
-        if seed is None:
-            o, _ = self.envs[i].reset()
-        else:
-            o, _ = self.envs[i].reset(seed=int(np.random.SeedSequence([seed, actor_id, i]).generate_state(1)[0]))
+        seeds = [None if seed is None else int(np.random.SeedSequence([seed, actor_id, i]).generate_state(1)[0])
+                 for i in indices]
+        obs = self.envs.reset(indices, seeds)
         self.summary.env_seconds += time.perf_counter() - t
-        o = np.asarray(o, dtype=np.float64).reshape(-1)
-        self.decl.check_obs(o, "reset")
-        return o
+        for o in obs:
+            self.decl.check_obs(o, "reset")
+        return obs
+
+    def close(self):
+        """Closes the envs (and ends their worker processes, if any)."""
+        self.envs.close()
 
     def _collect(self, policy, rng, obs, running, returns, n, limit):
         """n steps of every env; the rollout message (env-major) and the new observations."""
@@ -293,19 +300,14 @@ class Actor:
         done_all = np.zeros((e, n), dtype=bool)
         episodes = [[] for _ in range(e)]
         timeouts = [[] for _ in range(e)]
-        nxt = np.empty_like(obs)
-        rewards, terminated, truncated = np.zeros(e), np.zeros(e, dtype=bool), np.zeros(e, dtype=bool)
-        infos = [None] * e
-        space = self.envs[0].action_space
         env_time = 0.0
         for t in range(n):
             o_all[:, t] = obs
             actions, payload = policy.act(o_all[:, t], rng)
             act_all[:, t], pay_all[:, t] = actions, payload
+            env_actions = self.actions(actions)
             t0 = time.perf_counter()
-            for i, (env, a) in enumerate(zip(self.envs, d.env_actions(actions, space))):
-                o, rewards[i], terminated[i], truncated[i], infos[i] = env.step(a)
-                nxt[i] = np.asarray(o).reshape(-1)
+            nxt, rewards, terminated, truncated, infos = self.envs.step(env_actions)
             env_time += time.perf_counter() - t0
             # Bounds are checked for the whole rollout below (before anything is sent).
             delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False)
@@ -325,16 +327,18 @@ class Actor:
             done = success | timeout
             done_all[:, t] = done
             obs[:] = nxt
-            for i in (np.flatnonzero(done) if done.any() else ()):
-                episodes[i].append(pb.Episode(length=int(running[i]), success=bool(success[i]),
-                                              ret=float(returns[i])))
-                if timeout[i]:
-                    d.check_obs(nxt[i], f"step {running[i]} of an episode")
-                    timeouts[i].append((i * n + t, nxt[i].astype(np.float32).tolist()))
-                self.summary.episodes += 1
-                self.summary.successes += int(success[i])
-                running[i], returns[i] = 0, 0.0
-                obs[i] = self._reset(i)
+            if done.any():
+                ended = np.flatnonzero(done)
+                for i in ended:
+                    episodes[i].append(pb.Episode(length=int(running[i]), success=bool(success[i]),
+                                                  ret=float(returns[i])))
+                    if timeout[i]:
+                        d.check_obs(nxt[i], f"step {running[i]} of an episode")
+                        timeouts[i].append((i * n + t, nxt[i].astype(np.float32).tolist()))
+                    self.summary.episodes += 1
+                    self.summary.successes += int(success[i])
+                    running[i], returns[i] = 0, 0.0
+                obs[ended] = self._reset(ended)
         o_all[:, n] = obs
         d.check_obs(o_all, "a step")
         d.check_steps(delta_all, rew_all, "a step")

@@ -248,14 +248,30 @@ def env_actions(actions: np.ndarray, continuous: int, space) -> list:
     continuous values clipped to [-1, 1] and scaled to the Box; a choice's one-hot (the
     entries after the continuous ones) as its index."""
     actions = np.asarray(actions)
-    if actions.shape[1] > continuous:
-        return [int(i) for i in np.argmax(actions[:, continuous:], axis=1)]
-    a = np.clip(actions[:, :continuous], -1.0, 1.0)
-    low, high = space.low.reshape(-1), space.high.reshape(-1)
-    if not (np.all(low == -1.0) and np.all(high == 1.0)):
-        a = low + (a + 1.0) * 0.5 * (high - low)
-    a = a.astype(space.dtype)
-    return list(a) if space.shape == (continuous,) else [row.reshape(space.shape) for row in a]
+    return ActionMap(continuous, actions.shape[1], space)(actions)
+
+
+class ActionMap:
+    """`env_actions` for one action space, with what the space asks worked out once (an
+    actor maps every step's actions with it)."""
+
+    def __init__(self, continuous: int, action_dim: int, space):
+        self.c, self.choice = continuous, action_dim > continuous
+        if not self.choice:
+            self.low, high = space.low.reshape(-1), space.high.reshape(-1)
+            self.unit = bool(np.all(self.low == -1.0) and np.all(high == 1.0))
+            self.span = high - self.low
+            self.dtype, self.shape = space.dtype, space.shape
+            self.flat = space.shape == (continuous,)
+
+    def __call__(self, actions: np.ndarray) -> list:
+        if self.choice:
+            return np.argmax(actions[:, self.c:], axis=1).tolist()
+        a = np.clip(actions[:, :self.c], -1.0, 1.0)
+        if not self.unit:
+            a = self.low + (a + 1.0) * 0.5 * self.span
+        a = a.astype(self.dtype, copy=False)
+        return list(a) if self.flat else [row.reshape(self.shape) for row in a]
 
 
 def _text(layout) -> str:

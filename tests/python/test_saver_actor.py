@@ -355,6 +355,92 @@ def make():
 """
 
 
+class _Breaks(gym.Env):
+    """An env whose step raises on its 3rd call (for the worker's error)."""
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,))
+    action_space = gym.spaces.Box(-1.0, 1.0, (2,))
+
+    def reset(self, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(2), {}
+
+    def step(self, a):
+        self.t += 1
+        if self.t == 3:
+            raise ValueError("the env broke at step 3")
+        return np.zeros(2), 0.0, False, False, {}
+
+
+def test_env_worker_processes_step_as_the_actor_does():
+    """--env-processes: envs stepped in worker processes give the same steps as in the
+    actor's own process (5 point masses over 3 workers, 300 steps with resets), so a
+    sync run with them equals one without, metric for metric; a failing env's
+    traceback comes back as the actor's error, and a bad count is refused."""
+    from saver_actor.envset import EnvWorkerError, LocalEnvs, ProcessEnvs
+    from saver_actor.examples import pointmass
+
+    make_env, decl = pointmass()
+    local, workers = LocalEnvs(make_env, 5, decl.obs_dim), ProcessEnvs(make_env, 5, decl.obs_dim, 3)
+    try:
+        assert workers.limits == local.limits and workers.action_space == local.action_space
+        seeds = [11, 12, 13, 14, 15]
+        assert np.array_equal(np.stack(local.reset(range(5), seeds)), np.stack(workers.reset(range(5), seeds)))
+        rng = np.random.default_rng(0)
+        resets = 0
+        for t in range(300):
+            acts = list(rng.uniform(-1, 1, (5, 2)).astype(np.float32))
+            a, b = local.step(acts), workers.step(acts)
+            for x, y in zip(a[:4], b[:4]):
+                assert np.array_equal(x, y), t
+            if t % 37 == 36:  # reset two envs of different workers, one seeded
+                resets += 1
+                assert np.array_equal(np.stack(local.reset([4, 1], [None, t])),
+                                      np.stack(workers.reset([4, 1], [None, t])))
+        assert resets == 8
+    finally:
+        local.close()
+        workers.close()
+    try:
+        ProcessEnvs(make_env, 2, decl.obs_dim, 3)
+        raise AssertionError("3 processes for 2 envs were accepted")
+    except ValueError as e:
+        assert "1..=2" in str(e), e
+    broken = ProcessEnvs(_Breaks, 2, 2, 2)
+    try:
+        broken.reset([0, 1], [0, 1])
+        broken.step([np.zeros(2, np.float32)] * 2)
+        broken.step([np.zeros(2, np.float32)] * 2)
+        try:
+            broken.step([np.zeros(2, np.float32)] * 2)
+            raise AssertionError("a failing env went unnoticed")
+        except EnvWorkerError as e:
+            assert "the env broke at step 3" in str(e) and "while stepping" in str(e), e
+    finally:
+        broken.close()
+
+    # A sync A2C run on Reacher with one actor of 4 envs, in its process and in 2 workers.
+    cfg = write_reacher_config(os.path.join(TMP, "reacher-workers.toml"))
+    rows = []
+    for procs in (0, 2):
+        name = f"workers{procs}"
+        srv = learner(name, "--config", cfg, "--algo", "a2c", "--steps", "6000", "--actors", "1", "--seed", "3",
+                      "--exit-when-done").wait_ready()
+        make_env, decl = reacher()
+        actor = Actor(make_env, decl, Connection(srv.url), n_envs=4, give_up=30, log=lambda m: None,
+                      env_processes=procs)
+        try:
+            s = actor.run()
+        finally:
+            actor.close()
+        srv.proc.wait(60)
+        assert s.steps >= 6000, s
+        with open(os.path.join(TMP, name, "metrics.csv")) as f:
+            rows.append([{k: v for k, v in r.items() if k not in ("wall_s", "steps_per_s")} for r in csv.DictReader(f)])
+    assert len(rows[0]) > 10 and rows[0] == rows[1], (len(rows[0]), len(rows[1]))
+    print(f"  {len(rows[0])} metrics rows equal with and without env worker processes")
+
+
 def test_check_finds_what_a_run_would_refuse():
     """`saver-actor check` before a long run: the line env passes as declared; declared
     with max_change 0.01 (it moves 0.05) or ending its episodes without success, it
