@@ -145,16 +145,16 @@ class ProcessEnvs:
         return self._obs, self._rewards, self._terminated, self._truncated, infos
 
     def reset(self, indices: Sequence[int], seeds: Sequence[Optional[int]]) -> List[np.ndarray]:
+        """As LocalEnvs.reset, one message to each worker that holds one of the envs."""
         asked = []
         for c, s in zip(self.conns, self.slices):
-            mine = [(i - s.start, seed) for i, seed in zip(indices, seeds) if s.start <= i < s.stop]
+            mine = [(i, seed) for i, seed in zip(indices, seeds) if s.start <= i < s.stop]
             if mine:
-                c.send(("reset", mine))
-                asked.append((c, [i for i in indices if s.start <= i < s.stop]))
-        out = {}
-        for c, idx in asked:
-            for i, o in zip(idx, self._answer(c, "resetting")[1]):
-                out[i] = o
+                c.send(("reset", [(i - s.start, seed) for i, seed in mine]))
+                asked.append((c, mine))
+        out: dict = {}
+        for c, mine in asked:
+            out.update(zip((i for i, _ in mine), self._answer(c, "resetting")[1]))
         return [out[i] for i in indices]
 
     def close(self):

@@ -13,11 +13,11 @@ use crate::train::train_with;
 use anyhow::Result;
 use candle_core::{Device, Tensor};
 use clap::Args;
-use saver_core::algo::{build, mlp_flops, threads_for, Algorithm, GradPath};
+use saver_core::algo::{build, quantile_net_flops, threads_for, Algorithm, GradPath};
 use saver_core::config::Algo;
 use saver_core::config::PretrainConfig;
 use saver_core::env::{EnvKind, EnvLayout, EnvSpec};
-use saver_core::nets::{Pcpn, PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
+use saver_core::nets::Pcpn;
 use saver_core::pretrain::{EnvSampler, Pretrainer};
 use saver_core::rng::{rng_for, uniform01};
 use saver_core::rollout::Batch;
@@ -79,11 +79,8 @@ use saver_core::algo::update_flops;
 
 /// FLOPs of one pretraining batch of `b` samples with K = `k` (module doc).
 pub fn pretrain_flops(l: &EnvLayout, b: usize, k: usize) -> f64 {
-    let d = l.aligned_dim;
-    let shared = mlp_flops(b, &[l.pcpn_input_dim(), PCPN_HIDDEN, d * PCPN_CHUNK]);
-    let heads = d as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
-    let embed = (b * k * d * PCPN_CHUNK) as f64;
-    3.0 * (shared + heads) + 2.0 * embed
+    let (pcpn, embed) = quantile_net_flops(b, k, l.pcpn_input_dim(), l.aligned_dim);
+    3.0 * pcpn + 2.0 * embed
 }
 
 /// Seconds per pretraining batch on angle d with the default settings (batch 128,

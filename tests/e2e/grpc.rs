@@ -317,6 +317,20 @@ fn run_with_a_late_rollout(
     o
 }
 
+/// The paper's A2C on angle d = 2 in async mode: 2 actors of 8-step rollouts, `updates`
+/// updates' worth of steps, lag at most `max_lag`.
+fn async_a2c(updates: u64, max_lag: u64) -> RunConfig {
+    let mut config = RunConfig::paper(
+        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
+        Algo::A2c,
+        updates * 2 * 8,
+    );
+    config.actors = 2;
+    config.mode = saver_core::config::Mode::Async;
+    config.max_lag = Some(max_lag);
+    config
+}
+
 /// metrics.csv's column `name`, parsed.
 fn metrics_column<T: std::str::FromStr>(o: &saver_learner::TrainerOutcome, name: &str) -> Vec<T>
 where
@@ -336,14 +350,7 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
     // Async, 2 rollouts per update, max_lag 0: two actors train; a third acts on
     // version 0 and hands its rollout in only once the learner is at version 2. It must
     // be dropped as stale, and no update may use a rollout older than max_lag.
-    let mut config = RunConfig::paper(
-        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
-        Algo::A2c,
-        400 * 2 * 8,
-    );
-    config.actors = 2;
-    config.mode = saver_core::config::Mode::Async;
-    config.max_lag = Some(0);
+    let config = async_a2c(400, 0);
     let dir = temp_dir("async");
     let o = run_with_a_late_rollout(&config, &dir, 2);
     assert!(
@@ -365,14 +372,7 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
 /// own policy at that version, to rounding).
 #[test]
 fn vtrace_weighs_a_slow_actors_rollout_by_its_ratios() {
-    let mut config = RunConfig::paper(
-        &EnvSpec::new(EnvKind::Angle, 2).unwrap(),
-        Algo::A2c,
-        200 * 2 * 8,
-    );
-    config.actors = 2;
-    config.mode = saver_core::config::Mode::Async;
-    config.max_lag = Some(8);
+    let mut config = async_a2c(200, 8);
     config.vtrace = true;
     // A rate at which 5 updates move the policy visibly.
     config.lr = 3e-3;

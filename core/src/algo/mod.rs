@@ -15,15 +15,13 @@ mod saver_grad;
 pub mod saver_signal;
 mod vtrace;
 
-pub use a2c::A2c;
-pub use a2c::RECOMMENDED_CUSTOM_A2C_LR;
+pub use a2c::{A2c, RECOMMENDED_CUSTOM_A2C_LR};
 pub use fused::{threads_for, Loss};
 pub use ppo::{
     Ppo, PRESET_PPO_ROLLOUT, RECOMMENDED_PPO_GRAD_CLIP, RECOMMENDED_PPO_LR, RECOMMENDED_PPO_ROLLOUT,
 };
 pub use qnet_grad::{quantile_net_grads, NetGrads};
-pub use qrrl::RECOMMENDED_QRRL_LR;
-pub use qrrl::{qrrl_actor_losses, Qrrl};
+pub use qrrl::{qrrl_actor_losses, Qrrl, RECOMMENDED_QRRL_LR};
 pub use saver::{tau_tensors, GradPath, Saver};
 pub use saver_defaults::{
     CUSTOM_SAVER_MU_RAW_PENALTY, CUSTOM_SAVER_PCPN_TUNE_LR, HIGH_DIM_ANGLE, HIGH_DIM_LOG_STD_MIN,
@@ -256,6 +254,17 @@ pub fn mlp_flops(rows: usize, dims: &[usize]) -> f64 {
     dims.windows(2)
         .map(|w| 2.0 * (rows * w[0] * w[1]) as f64)
         .sum()
+}
+
+/// FLOPs of a PCPN-shaped quantile net's forward on `b` rows of `input` entries with
+/// K = `k` quantiles for each of its `n` outputs: (the dense layers, the cosine
+/// embedding's product with the chunks, one multiply per row and feature). SAVER's
+/// frozen PCPN, QRRL's quantile policy and pretraining weigh them differently.
+pub fn quantile_net_flops(b: usize, k: usize, input: usize, n: usize) -> (f64, f64) {
+    use crate::nets::{PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN};
+    let shared = mlp_flops(b, &[input, PCPN_HIDDEN, n * PCPN_CHUNK]);
+    let heads = n as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
+    (shared + heads, (b * k * n * PCPN_CHUNK) as f64)
 }
 
 /// FLOPs of one update of `config`'s algorithm on `b` steps of `t` trajectories

@@ -99,15 +99,11 @@ fn check(c: &RunConfig) -> Result<()> {
 /// The quantile policy is trained (3× its layers) over the actions' dims, beside the
 /// critic.
 fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
-    use crate::nets::{PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
     let (l, k) = (&config.env.layout(), config.saver.quantiles);
-    let [h0, h1, h2] = TRUNK;
-    let c = l.continuous;
+    let [h0, h1, h2] = crate::nets::TRUNK;
     let critic = 3.0 * super::mlp_flops(b + t, &[l.obs_dim, h0, h1, h2, 1]);
-    let shared = super::mlp_flops(b, &[l.obs_dim, PCPN_HIDDEN, c * PCPN_CHUNK]);
-    let heads = c as f64 * super::mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
-    let embed = (b * k * c * PCPN_CHUNK) as f64;
-    critic + 3.0 * (shared + heads) + 2.0 * embed
+    let (policy, embed) = super::quantile_net_flops(b, k, l.obs_dim, l.continuous);
+    critic + 3.0 * policy + 2.0 * embed
 }
 
 fn build_qrrl(config: &RunConfig, _pcpn: Option<Pcpn>, dev: &Device) -> Result<Box<dyn Algorithm>> {

@@ -13,7 +13,7 @@
 use super::mlp_flops;
 use crate::config::{HeadConfig, OptimizerKind, RunConfig};
 use crate::env::EnvKind;
-use crate::nets::{PCPN_CHUNK, PCPN_HEAD_HIDDEN, PCPN_HIDDEN, TRUNK};
+use crate::nets::TRUNK;
 
 /// SAVER's learning rate by default (with Adam; the paper's is 0.01 with RMSProp).
 /// 3e-4 before: at d = 16 it left SAVER at a mean length of 1000 for 2.56 M steps,
@@ -78,11 +78,8 @@ pub(crate) fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let [h0, h1, h2] = TRUNK;
     let agent = 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
     let critic = 3.0 * mlp_flops(rows, &[l.pcpn_input_dim(), h0, h1, h2, l.aligned_dim]);
-    let d = l.aligned_dim;
-    let shared = mlp_flops(b, &[l.pcpn_input_dim(), PCPN_HIDDEN, d * PCPN_CHUNK]);
-    let heads = d as f64 * mlp_flops(b * k, &[PCPN_CHUNK, PCPN_HEAD_HIDDEN, 1]);
-    let embed = (b * k * d * PCPN_CHUNK) as f64;
-    agent + critic + 2.0 * (shared + heads + embed)
+    let (pcpn, embed) = super::quantile_net_flops(b, k, l.pcpn_input_dim(), l.aligned_dim);
+    agent + critic + 2.0 * (pcpn + embed)
 }
 
 #[cfg(test)]
