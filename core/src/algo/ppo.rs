@@ -63,7 +63,6 @@ pub struct Ppo {
     dev: Device,
 }
 
-/// PPO's registration ([`super::entry`]).
 /// PPO's learning rate (Adam; Stable-Baselines3's).
 pub const RECOMMENDED_PPO_LR: f64 = 3e-4;
 /// PPO's rollout length on a custom env: Stable-Baselines3's `n_steps`, 2,048 steps per
@@ -77,6 +76,7 @@ pub const RECOMMENDED_PPO_ROLLOUT: u32 = 2048;
 pub const PRESET_PPO_ROLLOUT: u32 = 128;
 /// PPO's gradient-norm clip (Stable-Baselines3's `max_grad_norm`).
 pub const RECOMMENDED_PPO_GRAD_CLIP: f64 = 0.5;
+/// PPO's registration ([`super::entry`]).
 pub(crate) const ENTRY: super::Entry = super::Entry {
     build: build_ppo,
     policy: super::gaussian_policy,

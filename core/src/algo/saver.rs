@@ -5,6 +5,8 @@
 //! L_mon = λ_mon · 2K · mean_{B·K·K·d} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
+mod epochs;
+
 use super::pcpn_tune::PcpnTuner;
 use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
 use super::saver_signal::{predicted_delta, rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY};
@@ -14,7 +16,7 @@ use super::{
 use crate::config::{DeltaTarget, RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
-use crate::nets::{gaussian_log_prob, Agent, Critic, Pcpn};
+use crate::nets::{gaussian_log_prob, Agent, AgentOut, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
@@ -148,7 +150,9 @@ impl Saver {
         let critic = Critic::new(&layout, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
-        let opt = super::run_optimizer(vars, config, 1)?;
+        let batch = config.batch_transitions() as usize;
+        let per_update = (config.saver.epochs * config.saver.minibatches(batch)) as u64;
+        let opt = super::run_optimizer(vars, config, per_update)?;
         let tuner = (config.saver.pcpn_tune_lr > 0.0)
             .then(|| PcpnTuner::new(&pcpn, config.optimizer, config.saver.pcpn_tune_lr))
             .transpose()?;
@@ -182,38 +186,70 @@ impl Saver {
     }
 }
 
-impl Algorithm for Saver {
-    fn stat_names(&self) -> Vec<&'static str> {
-        let mut names = if self.tuner.is_some() {
-            STATS_TUNED.to_vec()
-        } else {
-            STATS.to_vec()
-        };
-        if self.vtrace.is_some() {
-            names.extend(super::VTRACE_STATS);
-        }
-        names
-    }
+/// A batch's quantities at its update's start.
+struct Start {
+    /// The agent over every row (B steps, then the bootstrap rows), in the graph.
+    out: AgentOut,
+    /// [B, o]: the steps' observations.
+    obs: Tensor,
+    /// [B, ·]: μ and log σ of the steps, in the graph.
+    mu: Tensor,
+    log_std: Tensor,
+    /// [B, o + M + L]: the PCPN's inputs [o, μ, log σ] as constants.
+    x: Tensor,
+    /// [B, d]: V(x) in the graph, the critic's targets R, on the host too.
+    value: Tensor,
+    returns: Tensor,
+    returns_host: Vec<f32>,
+    /// [B, d]: the advantages as trained on (normalised with `saver.adv_norm`).
+    adv_host: Vec<f32>,
+    /// [B, d]: the actor loss's Δp (`saver.target`).
+    target: Vec<f32>,
+    /// μ and log σ of the steps on the host.
+    mu_host: Vec<f32>,
+    log_std_host: Vec<f32>,
+    /// V-trace's statistics, when it runs.
+    vtrace_stats: Vec<(&'static str, f32)>,
+}
 
-    fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
+/// The agent's loss on some rows: L_a and L_mon, the tensor whose gradient trains the
+/// agent, and (fast path) dL/dμ per row.
+struct AgentLoss {
+    actor: f32,
+    mon: f32,
+    loss: Tensor,
+    dmu: Option<Vec<f32>>,
+}
+
+/// An update's losses as reported (the mean over its optimiser steps).
+#[derive(Clone, Copy, Default)]
+struct Losses {
+    actor: f32,
+    mon: f32,
+    critic: f32,
+    grad_norm: f32,
+}
+
+impl Saver {
+    /// The critic's targets, the advantages and the actor loss's Δp of `batch`, from
+    /// one forward of agent and critic over its rows.
+    fn start(&self, batch: &Batch) -> Result<Start> {
         let (b, o, d) = (batch.len(), self.layout.obs_dim, self.layout.aligned_dim);
-        let k = self.cfg.quantiles;
         let (obs_all, n_ends) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
         let out = self.agent.forward(&obs_all)?;
         // The critic sees the policy's outputs as constants: its loss trains it alone.
         let x_all = Tensor::cat(&[&obs_all, &out.mu, &out.log_std], 1)?.detach();
         let v_all = self.critic.forward(&x_all)?; // [B+T, d]
         let value = v_all.narrow(0, 0, b)?;
-        // Â on the host (what the fast path and the statistics read) and as a tensor.
         let mu = out.mu.narrow(0, 0, b)?;
         let log_std = out.log_std.narrow(0, 0, b)?;
         let mut vtrace_stats = Vec::new();
-        let (returns_host, returns, mut adv_host) = match self.vtrace {
+        let (returns_host, mut adv_host) = match self.vtrace {
             None => {
                 let r = batch_returns(batch, &batch.vector_reward, &v_all, n_ends, d, self.gamma)?;
                 let returns = Tensor::from_slice(&r, (b, d), &self.dev)?;
                 let adv: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?;
-                (r, returns, adv)
+                (r, adv)
             }
             Some(vt) => {
                 let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
@@ -231,110 +267,169 @@ impl Algorithm for Saver {
                     &log_pi,
                 )?;
                 vtrace_stats = corrected.stats;
-                let returns = Tensor::from_slice(&corrected.targets, (b, d), &self.dev)?;
-                (corrected.targets, returns, corrected.advantages)
+                (corrected.targets, corrected.advantages)
             }
         };
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }
-        let advantage = Tensor::from_slice(&adv_host, (b, d), &self.dev)?;
-        let critic_loss = ((&value - &returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
-
-        let taus = uniform01(&mut self.rng, d * b * k);
-        let obs = obs_all.narrow(0, 0, b)?;
+        let returns = Tensor::from_slice(&returns_host, (b, d), &self.dev)?;
         let (mu_host, log_std_host): (Vec<f32>, Vec<f32>) = (
             mu.flatten_all()?.to_vec1()?,
             log_std.flatten_all()?.to_vec1()?,
         );
-        let signal = SignalBatch {
-            obs: &batch.obs,
-            mu: &mu_host,
-            log_std: &log_std_host,
-            actions: &batch.actions,
-            state_delta: &batch.state_delta,
-            advantage: &adv_host,
-            dmu: None,
-        };
-        let predicted;
-        let target: &[f32] = match self.cfg.target {
-            DeltaTarget::Observed => &batch.state_delta,
+        let target = match self.cfg.target {
+            DeltaTarget::Observed => batch.state_delta.clone(),
             DeltaTarget::Predicted => {
-                predicted = predicted_delta(self.pcpn.pcpn(), &self.layout, &signal, &self.dev)?;
-                &predicted
+                let signal = SignalBatch {
+                    obs: &batch.obs,
+                    mu: &mu_host,
+                    log_std: &log_std_host,
+                    actions: &batch.actions,
+                    state_delta: &batch.state_delta,
+                    advantage: &adv_host,
+                    dmu: None,
+                };
+                predicted_delta(self.pcpn.pcpn(), &self.layout, &signal, &self.dev)?
             }
         };
-        let mut dmu_host = None;
-        // The PCPN's inputs [o, μ, log σ] as constants (the fast path's and the tuner's).
+        let obs = obs_all.narrow(0, 0, b)?;
         let x = Tensor::cat(&[&obs, &mu, &log_std], 1)?.detach();
-        let (actor, mon, agent_loss) = match self.path {
+        Ok(Start {
+            out,
+            obs,
+            mu,
+            log_std,
+            x,
+            value,
+            returns,
+            returns_host,
+            adv_host,
+            target,
+            mu_host,
+            log_std_host,
+            vtrace_stats,
+        })
+    }
+
+    /// SAVER's actor loss and monotonic penalty on rows `obs` with policy outputs `mu`,
+    /// `log_std` (in the graph), their PCPN inputs `x`, Δp `target`, advantages `adv`
+    /// and τ `taus` [d·rows·K].
+    #[allow(clippy::too_many_arguments)]
+    fn agent_loss(
+        &self,
+        obs: &Tensor,
+        x: &Tensor,
+        mu: &Tensor,
+        log_std: &Tensor,
+        target: &[f32],
+        adv: &[f32],
+        taus: &[f32],
+    ) -> Result<AgentLoss> {
+        let (b, d, k) = (obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
+        match self.path {
             GradPath::Fast => {
                 // dL/dμ and dL/dlog σ by hand, then the surrogate Σ μ·dμ + Σ log σ·dlog σ
                 // carries them into the agent through autograd.
-                let g = self
-                    .pcpn
-                    .input_grad(&x, target, &adv_host, &taus, &self.cfg)?;
-                let (dmu, dls) = policy_grads(&g.dx, o, self.layout.mu_dim())?;
-                dmu_host = Some(dmu.flatten_all()?.to_vec1::<f32>()?);
-                let surrogate = ((&mu * dmu)?.sum_all()? + (&log_std * dls)?.sum_all()?)?;
-                (g.actor_loss, g.mon_loss, surrogate)
+                let g = self.pcpn.input_grad(x, target, adv, taus, &self.cfg)?;
+                let (dmu, dls) = policy_grads(&g.dx, self.layout.obs_dim, self.layout.mu_dim())?;
+                let dmu_host = dmu.flatten_all()?.to_vec1::<f32>()?;
+                let loss = ((mu * dmu)?.sum_all()? + (log_std * dls)?.sum_all()?)?;
+                Ok(AgentLoss {
+                    actor: g.actor_loss,
+                    mon: g.mon_loss,
+                    loss,
+                    dmu: Some(dmu_host),
+                })
             }
             GradPath::Reference => {
-                let (tau, cos) = tau_tensors(&taus, d, b, k, &self.dev)?;
+                let (tau, cos) = tau_tensors(taus, d, b, k, &self.dev)?;
                 let l = saver_actor_losses(
                     self.pcpn.pcpn(),
-                    &obs,
-                    &mu,
-                    &log_std,
+                    obs,
+                    mu,
+                    log_std,
                     &matrix(target, b, d, &self.dev)?,
-                    &advantage,
+                    &Tensor::from_slice(adv, (b, d), &self.dev)?,
                     &tau,
                     &cos,
                     &self.cfg,
                 )?;
-                let (a, m) = (l.actor.to_scalar::<f32>()?, l.mon.to_scalar::<f32>()?);
-                (a, m, (l.actor + l.mon)?)
+                Ok(AgentLoss {
+                    actor: l.actor.to_scalar::<f32>()?,
+                    mon: l.mon.to_scalar::<f32>()?,
+                    loss: (l.actor + l.mon)?,
+                    dmu: None,
+                })
             }
-        };
-        let mut loss = (agent_loss + &critic_loss)?;
-        if self.cfg.mu_raw_penalty > 0.0 {
-            let raw = out.mu_raw.narrow(0, 0, b)?;
-            let (w, entries) = (self.cfg.mu_raw_penalty, &self.cfg.mu_raw_penalty_entries);
-            loss = (loss + mu_raw_penalty(&raw, w, entries)?)?;
         }
-        // Checked before the step: a non-finite loss changes nothing.
-        let actor = check_finite("actor_loss", actor)?;
-        let mon = check_finite("mon_loss", mon)?;
-        let critic = check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?;
-        // The PCPN's step on this batch, computed before anything changes.
-        let tune = match &self.tuner {
-            Some(t) => {
-                let taus = uniform01(&mut self.rng, d * b * k);
-                Some(t.grads(&x, &batch.state_delta, &taus)?)
-            }
-            None => None,
+    }
+
+    /// `loss` plus the saturation wall on the raw means `raw`, when it is on.
+    fn with_penalty(&self, loss: Tensor, raw: &Tensor) -> Result<Tensor> {
+        if self.cfg.mu_raw_penalty == 0.0 {
+            return Ok(loss);
+        }
+        let (w, entries) = (self.cfg.mu_raw_penalty, &self.cfg.mu_raw_penalty_entries);
+        Ok((loss + mu_raw_penalty(raw, w, entries)?)?)
+    }
+
+    /// The PCPN's loss and gradient on the batch's steps (inputs `x`), when it learns.
+    fn tune_grads(
+        &mut self,
+        x: &Tensor,
+        batch: &Batch,
+    ) -> Result<Option<(f32, candle_core::backprop::GradStore)>> {
+        let Some(t) = &self.tuner else {
+            return Ok(None);
         };
-        let grads = loss.backward()?;
-        let grad_norm = self.opt.step(&grads)? as f32;
-        let tune_loss = match (&mut self.tuner, tune) {
+        let (b, d, k) = (batch.len(), self.layout.aligned_dim, self.cfg.quantiles);
+        let taus = uniform01(&mut self.rng, d * b * k);
+        Ok(Some(t.grads(x, &batch.state_delta, &taus)?))
+    }
+
+    /// Applies the PCPN's step; its loss.
+    fn apply_tune(
+        &mut self,
+        tune: Option<(f32, candle_core::backprop::GradStore)>,
+    ) -> Result<Option<f32>> {
+        match (&mut self.tuner, tune) {
             (Some(t), Some((l, g))) => {
                 t.apply(&g)?;
                 self.pcpn = self.pcpn.refreshed(t.frozen()?)?;
-                Some(l)
+                Ok(Some(l))
             }
-            _ => None,
-        };
-        let (mu_abs_max, log_std_mean) = policy_diagnostics(&mu, &log_std)?;
+            _ => Ok(None),
+        }
+    }
+
+    /// The update's statistics: its losses, the policy's and the per-dimension ones of
+    /// the batch at its start, and the signal's (`dmu`: dL/dμ per row, fast path).
+    fn finish(
+        &mut self,
+        batch: &Batch,
+        s: Start,
+        dmu: Option<Vec<f32>>,
+        l: Losses,
+        tune_loss: Option<f32>,
+    ) -> Result<UpdateStats> {
+        let d = self.layout.aligned_dim;
+        let (mu_abs_max, log_std_mean) = policy_diagnostics(&s.mu, &s.log_std)?;
         let signal = SignalBatch {
-            dmu: dmu_host.as_deref(),
-            ..signal
+            obs: &batch.obs,
+            mu: &s.mu_host,
+            log_std: &s.log_std_host,
+            actions: &batch.actions,
+            state_delta: &batch.state_delta,
+            advantage: &s.adv_host,
+            dmu: dmu.as_deref(),
         };
         let mut per_dim = super::per_dim::per_dim_stats(
-            &returns_host,
-            &value.flatten_all()?.to_vec1::<f32>()?,
+            &s.returns_host,
+            &s.value.flatten_all()?.to_vec1::<f32>()?,
             &batch.vector_reward,
-            &mu_host,
-            &log_std_host,
+            &s.mu_host,
+            &s.log_std_host,
             d,
             self.mu_bound,
         );
@@ -347,16 +442,73 @@ impl Algorithm for Saver {
         per_dim.extend(self.ranks.iter().cloned());
         per_dim.extend(snr_stats(&self.layout, &signal));
         let mut values = vec![
-            ("actor_loss", actor),
-            ("mon_loss", mon),
-            ("critic_loss", critic),
+            ("actor_loss", l.actor),
+            ("mon_loss", l.mon),
+            ("critic_loss", l.critic),
             ("mu_abs_max", mu_abs_max),
             ("log_std_mean", log_std_mean),
-            ("grad_norm", grad_norm),
+            ("grad_norm", l.grad_norm),
         ];
         values.extend(tune_loss.map(|l| ("pcpn_tune_loss", l)));
-        values.extend(vtrace_stats);
+        values.extend(s.vtrace_stats);
         Ok(UpdateStats { values, per_dim })
+    }
+}
+
+impl Algorithm for Saver {
+    fn stat_names(&self) -> Vec<&'static str> {
+        let mut names = if self.tuner.is_some() {
+            STATS_TUNED.to_vec()
+        } else {
+            STATS.to_vec()
+        };
+        if self.vtrace.is_some() {
+            names.extend(super::VTRACE_STATS);
+        }
+        names
+    }
+
+    fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        if !self.cfg.one_step(batch.len()) {
+            return self.update_epochs(batch);
+        }
+        let (b, d, k) = (batch.len(), self.layout.aligned_dim, self.cfg.quantiles);
+        let s = self.start(batch)?;
+        let critic_loss = ((&s.value - &s.returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
+        let taus = uniform01(&mut self.rng, d * b * k);
+        let a = self.agent_loss(
+            &s.obs,
+            &s.x,
+            &s.mu,
+            &s.log_std,
+            &s.target,
+            &s.adv_host,
+            &taus,
+        )?;
+        let raw = s.out.mu_raw.narrow(0, 0, b)?;
+        let loss = self.with_penalty((a.loss + &critic_loss)?, &raw)?;
+        // Checked before the step: a non-finite loss changes nothing.
+        let losses = Losses {
+            actor: check_finite("actor_loss", a.actor)?,
+            mon: check_finite("mon_loss", a.mon)?,
+            critic: check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
+            grad_norm: 0.0,
+        };
+        // The PCPN's step on this batch, computed before anything changes.
+        let tune = self.tune_grads(&s.x, batch)?;
+        let grads = loss.backward()?;
+        let grad_norm = self.opt.step(&grads)? as f32;
+        let tune_loss = self.apply_tune(tune)?;
+        self.finish(
+            batch,
+            s,
+            a.dmu,
+            Losses {
+                grad_norm,
+                ..losses
+            },
+            tune_loss,
+        )
     }
 
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {

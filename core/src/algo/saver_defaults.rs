@@ -71,15 +71,22 @@ pub(crate) fn recommend(c: &mut RunConfig) {
 }
 
 /// The agent and the vector critic are trained; the frozen PCPN's trunk runs once per
-/// step and its heads over the B·K·d quantile rows, forward and input gradient.
+/// step and its heads over the B·K·d quantile rows, forward and input gradient. With
+/// several passes (`saver.epochs`, `saver.minibatch_size`) agent and critic run forward
+/// once over every row at the update's start, then each pass trains all three over the
+/// B steps again.
 pub(crate) fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let (l, k) = (&config.env.layout(), config.saver.quantiles);
-    let rows = b + t;
     let [h0, h1, h2] = TRUNK;
-    let agent = 3.0 * mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
-    let critic = 3.0 * mlp_flops(rows, &[l.pcpn_input_dim(), h0, h1, h2, l.aligned_dim]);
+    let agent = |rows| mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
+    let critic = |rows| mlp_flops(rows, &[l.pcpn_input_dim(), h0, h1, h2, l.aligned_dim]);
     let (pcpn, embed) = super::quantile_net_flops(b, k, l.pcpn_input_dim(), l.aligned_dim);
-    agent + critic + 2.0 * (pcpn + embed)
+    let pass = |rows| 3.0 * (agent(rows) + critic(rows));
+    if config.saver.one_step(b) {
+        return pass(b + t) + 2.0 * (pcpn + embed);
+    }
+    let epochs = config.saver.epochs as f64;
+    agent(b + t) + critic(b + t) + epochs * (pass(b) + 2.0 * (pcpn + embed))
 }
 
 #[cfg(test)]

@@ -494,5 +494,7 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         qrrl_vector: false,
         target: crate::config::DeltaTarget::Observed,
         pcpn_tune_lr: 0.0,
+        epochs: 1,
+        minibatch_size: 0,
     }
 }

@@ -75,6 +75,34 @@ pub struct SaverConfig {
     /// docs/ALGORITHM.md §7.1). 0: the PCPN stays frozen (the paper).
     #[serde(default)]
     pub pcpn_tune_lr: f64,
+    /// Passes over each batch, each in shuffled minibatches of [`Self::minibatch_size`]
+    /// steps, every minibatch one optimiser step (docs/ALGORITHM.md §7.1). 1 with one
+    /// minibatch: one step per batch (the paper).
+    #[serde(default = "one_pass")]
+    pub epochs: usize,
+    /// Steps per minibatch of [`Self::epochs`]; 0: the whole batch.
+    #[serde(default)]
+    pub minibatch_size: usize,
+}
+
+fn one_pass() -> usize {
+    1
+}
+
+impl SaverConfig {
+    /// Minibatches per pass over a batch of `b` steps: ⌈b / minibatch_size⌉ of (nearly)
+    /// equal size, 1 with `minibatch_size` 0.
+    pub fn minibatches(&self, b: usize) -> usize {
+        match self.minibatch_size {
+            0 => 1,
+            m => b.div_ceil(m).max(1),
+        }
+    }
+
+    /// One optimiser step on the whole batch per update (the paper's update).
+    pub fn one_step(&self, b: usize) -> bool {
+        self.epochs == 1 && self.minibatches(b) == 1
+    }
 }
 
 fn one() -> f64 {
@@ -209,6 +237,8 @@ impl RunConfig {
                 qrrl_vector: false,
                 target: DeltaTarget::Observed,
                 pcpn_tune_lr: 0.0,
+                epochs: 1,
+                minibatch_size: 0,
             },
             ppo: PpoConfig::default(),
             pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
@@ -311,6 +341,18 @@ impl RunConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("{v} must be finite and >= 0"));
             }
+        }
+        if !(1..=1000).contains(&s.epochs) {
+            return bad("saver.epochs", format!("{} is not in 1..=1000", s.epochs));
+        }
+        if s.minibatch_size > 1 << 20 {
+            return bad(
+                "saver.minibatch_size",
+                format!(
+                    "{} is not in 0..=1048576 (0: the whole batch)",
+                    s.minibatch_size
+                ),
+            );
         }
         if s.target == DeltaTarget::Predicted && self.env.layout().choices > 0 {
             return bad(
@@ -465,6 +507,25 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("twice"));
+        let mut c = ok.clone();
+        c.saver.epochs = 0;
+        let e = crate::algo::validate(&c).unwrap_err().to_string();
+        assert!(
+            e.contains("saver.epochs") && e.contains("0 is not in 1..=1000"),
+            "{e}"
+        );
+        (c.saver.epochs, c.saver.minibatch_size) = (4, 1 << 21);
+        let e = crate::algo::validate(&c).unwrap_err().to_string();
+        assert!(e.contains("saver.minibatch_size"), "{e}");
+        // 128 steps in minibatches of 50: 3 of them (42, 43 and 43 steps).
+        c.saver.minibatch_size = 50;
+        crate::algo::validate(&c).unwrap();
+        assert_eq!(
+            (c.saver.minibatches(128), c.saver.one_step(128)),
+            (3, false)
+        );
+        (c.saver.epochs, c.saver.minibatch_size) = (1, 128);
+        assert!(c.saver.one_step(128));
         assert!(EnvSpec::new(EnvKind::Angle, 3)
             .unwrap_err()
             .to_string()
@@ -482,6 +543,7 @@ mod tests {
         bounded.mode = Mode::Async;
         bounded.max_lag = Some(3);
         bounded.pcpn_sha256 = Some("ab".repeat(32));
+        (bounded.saver.epochs, bounded.saver.minibatch_size) = (4, 256);
         for c in [faithful, bounded] {
             let text = c.to_toml();
             let back: RunConfig = toml::from_str(&text).unwrap();

@@ -142,6 +142,12 @@ pub struct SaverSettings {
     pub saver_target: Option<DeltaTarget>,
     #[arg(long, allow_hyphen_values = true, help = help("SAVER: learning rate of the PCPN's own training on the policy's steps during the run (one step per update; 0: frozen, the paper)", "saver.pcpn_tune_lr"))]
     pub pcpn_tune_lr: Option<f64>,
+    #[arg(id = "saver_epochs", value_name = "N", long = "saver-epochs", help = help("SAVER: passes over each batch, each in shuffled minibatches of --saver-minibatch-size steps (one optimiser step each)", "saver.epochs"))]
+    #[serde(rename = "epochs")]
+    pub saver_epochs: Option<usize>,
+    #[arg(id = "saver_minibatch_size", value_name = "N", long = "saver-minibatch-size", help = help("SAVER: steps per minibatch of --saver-epochs (0: the whole batch)", "saver.minibatch_size"))]
+    #[serde(rename = "minibatch_size")]
+    pub saver_minibatch_size: Option<usize>,
     #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
     pub qrrl_spread: Option<f64>,
     #[arg(long, help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "saver.qrrl_vector"))]

@@ -1,0 +1,208 @@
+//! SAVER over several passes of shuffled minibatches per batch (`saver.epochs`,
+//! `saver.minibatch_size`; docs/ALGORITHM.md §7.1), as PPO reuses its batches: the
+//! batch's critic targets, advantages and Δp targets are made once at its start, as in
+//! the one-step update, then every minibatch is one optimiser step of the same three
+//! losses on its rows, with the agent's and critic's outputs of that moment. The PCPN,
+//! when it learns, takes its one step on the whole batch after the passes.
+
+use super::{Losses, Saver, Start};
+use crate::algo::{check_finite, Algorithm, UpdateStats};
+use crate::rng::uniform01;
+use crate::rollout::Batch;
+use crate::Result;
+use candle_core::Tensor;
+use rand::seq::SliceRandom;
+
+/// One minibatch's losses and (fast path) dL/dμ per row.
+struct Step {
+    losses: Losses,
+    dmu: Option<Vec<f32>>,
+}
+
+impl Saver {
+    /// Several optimiser steps: a non-finite loss in a later one puts back the weights,
+    /// optimiser slots, step count and streams of the update's start.
+    pub(super) fn update_epochs(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let before = self.save_state()?;
+        let result = self.epochs(batch);
+        if result.is_err() {
+            self.restore_state(&|name| before.get(name), &before.numbers)?;
+        }
+        result
+    }
+
+    /// The update's body; on an error the caller puts the state back. The statistics
+    /// are the batch's at its start, the losses the mean over the steps, and the
+    /// signal's dL/dμ the first pass's (each row once).
+    fn epochs(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let (b, m) = (batch.len(), self.cfg.minibatches(batch.len()));
+        let s = self.start(batch)?;
+        let tune = self.tune_grads(&s.x, batch)?;
+        let mu_dim = self.layout.mu_dim();
+        let mut dmu = Some(vec![0f32; b * mu_dim]);
+        let mut sum = [0f64; 4];
+        let mut order: Vec<usize> = (0..b).collect();
+        for epoch in 0..self.cfg.epochs {
+            // One minibatch is the whole batch: its order changes nothing but the bits.
+            if m > 1 {
+                order.shuffle(&mut self.rng);
+            }
+            for j in 0..m {
+                // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
+                let idx = &order[j * b / m..(j + 1) * b / m];
+                let step = self.minibatch_step(batch, &s, idx)?;
+                let l = step.losses;
+                for (acc, v) in sum.iter_mut().zip([l.actor, l.mon, l.critic, l.grad_norm]) {
+                    *acc += v as f64;
+                }
+                if epoch == 0 {
+                    match (&mut dmu, step.dmu) {
+                        (Some(all), Some(rows)) => {
+                            for (&i, row) in idx.iter().zip(rows.chunks_exact(mu_dim)) {
+                                all[i * mu_dim..(i + 1) * mu_dim].copy_from_slice(row);
+                            }
+                        }
+                        _ => dmu = None,
+                    }
+                }
+            }
+        }
+        let tune_loss = self.apply_tune(tune)?;
+        let n = (self.cfg.epochs * m) as f64;
+        let mean = |i: usize| (sum[i] / n) as f32;
+        let losses = Losses {
+            actor: mean(0),
+            mon: mean(1),
+            critic: mean(2),
+            grad_norm: mean(3),
+        };
+        self.finish(batch, s, dmu, losses, tune_loss)
+    }
+
+    /// One optimiser step on the steps `idx`; its losses are checked before the step.
+    fn minibatch_step(&mut self, batch: &Batch, s: &Start, idx: &[usize]) -> Result<Step> {
+        let (o, d, k, n) = (
+            self.layout.obs_dim,
+            self.layout.aligned_dim,
+            self.cfg.quantiles,
+            idx.len(),
+        );
+        let rows = |data: &[f32], w: usize| -> Vec<f32> {
+            idx.iter()
+                .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
+                .collect()
+        };
+        let obs = Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?;
+        let out = self.agent.forward(&obs)?;
+        let x = Tensor::cat(&[&obs, &out.mu, &out.log_std], 1)?.detach();
+        let value = self.critic.forward(&x)?;
+        let returns = Tensor::from_vec(rows(&s.returns_host, d), (n, d), &self.dev)?;
+        let critic_loss = ((value - returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
+        let taus = uniform01(&mut self.rng, d * n * k);
+        let (target, adv) = (rows(&s.target, d), rows(&s.adv_host, d));
+        let a = self.agent_loss(&obs, &x, &out.mu, &out.log_std, &target, &adv, &taus)?;
+        let loss = self.with_penalty((a.loss + &critic_loss)?, &out.mu_raw)?;
+        let actor = check_finite("actor_loss", a.actor)?;
+        let mon = check_finite("mon_loss", a.mon)?;
+        let critic = check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?;
+        let grads = loss.backward()?;
+        let grad_norm = self.opt.step(&grads)? as f32;
+        Ok(Step {
+            losses: Losses {
+                actor,
+                mon,
+                critic,
+                grad_norm,
+            },
+            dmu: a.dmu,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::algo::tests::{random_batch, random_pcpn};
+    use crate::algo::{Algorithm, Saver};
+    use crate::config::Algo;
+    use crate::env::{EnvKind, EnvSpec};
+    use candle_core::{DType, Device, Tensor};
+
+    fn weights(s: &Saver) -> Vec<(String, Vec<f32>)> {
+        let state = s.save_state().unwrap();
+        let flat = |x: Tensor| x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        state
+            .tensors
+            .into_iter()
+            .map(|(n, x)| (n, flat(x)))
+            .collect()
+    }
+
+    /// SAVER on angle d = 2 with `epochs` passes of `minibatch_size`-step minibatches.
+    fn saver(epochs: usize, minibatch_size: usize, lr: f64) -> (Saver, crate::rollout::Batch) {
+        let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+        (config.saver.epochs, config.saver.minibatch_size, config.lr) =
+            (epochs, minibatch_size, lr);
+        let pcpn = random_pcpn(&spec.layout(), DType::F32);
+        let batch = random_batch(&spec.layout(), 4, 6, 9, 1.0, vec![false; 24]);
+        (Saver::new(&config, pcpn, &Device::Cpu).unwrap(), batch)
+    }
+
+    /// One pass over one whole-batch minibatch through the epochs code is the paper's
+    /// one-step update: the same weights after it, to float rounding (the minibatch
+    /// forward runs over the B steps alone, the one-step one over B + bootstrap rows).
+    #[test]
+    fn one_whole_batch_pass_is_the_one_step_update() {
+        let (mut one, batch) = saver(1, 0, 1e-3);
+        let (mut via_epochs, _) = saver(1, 0, 1e-3);
+        let a = one.update(&batch).unwrap();
+        let b = via_epochs.update_epochs(&batch).unwrap();
+        assert_eq!(
+            (one.optimizer_steps(), via_epochs.optimizer_steps()),
+            (1, 1)
+        );
+        for ((name, x), (_, y)) in weights(&one).iter().zip(weights(&via_epochs)) {
+            let worst = x
+                .iter()
+                .zip(&y)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0f32, f32::max);
+            assert!(worst <= 1e-6, "{name}: differs by {worst:e}");
+        }
+        let get =
+            |s: &crate::algo::UpdateStats, k: &str| s.values.iter().find(|v| v.0 == k).unwrap().1;
+        for k in ["actor_loss", "critic_loss", "grad_norm"] {
+            let (x, y) = (get(&a, k), get(&b, k));
+            assert!((x - y).abs() <= 1e-5 * x.abs().max(1e-6), "{k}: {x} vs {y}");
+        }
+    }
+
+    /// E passes of ⌈B / m⌉ minibatches take E·⌈B / m⌉ optimiser steps: 24 steps in
+    /// minibatches of 5 are 5 of them (of 4 or 5 steps), 3 passes 15 steps.
+    #[test]
+    fn every_minibatch_of_every_pass_is_one_optimiser_step() {
+        let (mut s, batch) = saver(3, 5, 1e-3);
+        let before = weights(&s);
+        s.update(&batch).unwrap();
+        assert_eq!(s.optimizer_steps(), 15);
+        s.update(&batch).unwrap();
+        assert_eq!(s.optimizer_steps(), 30);
+        assert_ne!(before, weights(&s));
+    }
+
+    /// At a learning rate of 1e30 the first minibatch's step blows the weights up and
+    /// a later minibatch's loss is not finite: the update fails and puts back the
+    /// weights and optimiser of its start, bit for bit.
+    #[test]
+    fn a_non_finite_later_minibatch_puts_back_the_update_start() {
+        let (mut s, batch) = saver(2, 6, 1e30);
+        let before = weights(&s);
+        let err = s.update(&batch).unwrap_err().to_string();
+        assert!(err.contains("finite"), "{err}");
+        assert_eq!(s.optimizer_steps(), 0);
+        for ((name, x), (_, y)) in before.iter().zip(weights(&s)) {
+            let same = x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits());
+            assert!(same, "{name} was not put back");
+        }
+    }
+}
