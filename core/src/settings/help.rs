@@ -132,7 +132,10 @@ mod tests {
             "Learning rate [default: a2c 0.0003, saver 0.001, --faithful saver 0.01] \
              (on angle; select and arm: docs/ALGORITHM.md) (qrrl: 0.001)"
         );
-        assert_eq!(help("Discount γ", "gamma"), "Discount γ [default: 0.99]");
+        assert_eq!(
+            help("Discount γ", "gamma"),
+            "Discount γ [default: 0.99] (saver on a custom env: 0.9)"
+        );
         assert_eq!(
             help("Rollout", "rollout"),
             "Rollout [default: 8] (ppo: 128)"
