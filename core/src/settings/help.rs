@@ -138,7 +138,7 @@ mod tests {
         );
         assert_eq!(
             help("Rollout", "rollout"),
-            "Rollout [default: 8] (ppo: 128)"
+            "Rollout [default: 8] (saver on a custom env: 64) (ppo: 128)"
         );
         assert_eq!(
             help("Floor", "head.log_std_min"),
