@@ -16,7 +16,7 @@ use super::{
 use crate::config::{DeltaTarget, RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
-use crate::nets::{gaussian_log_prob, Agent, AgentOut, Critic, Pcpn};
+use crate::nets::{gaussian_log_prob, Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
@@ -24,6 +24,7 @@ use crate::rollout::Batch;
 use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
 use saver_proto::NamedTensor;
+use std::borrow::Cow;
 
 /// The update's statistics, and last the PCPN's loss on the batch when it keeps
 /// learning ([`STATS`] without it).
@@ -186,30 +187,60 @@ impl Saver {
     }
 }
 
-/// A batch's quantities at its update's start.
-struct Start {
-    /// The agent over every row (B steps, then the bootstrap rows), in the graph.
-    out: AgentOut,
-    /// [B, o]: the steps' observations.
+/// Agent and critic over some rows, in the graph.
+struct Forward {
+    /// [N, o]: the rows' observations.
     obs: Tensor,
-    /// [B, ·]: μ and log σ of the steps, in the graph.
+    /// [N, ·]: μ, its value before the bound, and log σ.
     mu: Tensor,
+    raw: Tensor,
     log_std: Tensor,
-    /// [B, o + M + L]: the PCPN's inputs [o, μ, log σ] as constants.
+    /// [N, o + M + L]: the PCPN's and the critic's inputs [o, μ, log σ] as constants.
     x: Tensor,
-    /// [B, d]: V(x) in the graph, the critic's targets R, on the host too.
+    /// [N, d]: V(x).
     value: Tensor,
-    returns: Tensor,
+}
+
+impl Forward {
+    /// The first `n` rows.
+    fn narrow(&self, n: usize) -> Result<Self> {
+        let first = |t: &Tensor| t.narrow(0, 0, n);
+        Ok(Self {
+            obs: first(&self.obs)?,
+            mu: first(&self.mu)?,
+            raw: first(&self.raw)?,
+            log_std: first(&self.log_std)?,
+            x: first(&self.x)?,
+            value: first(&self.value)?,
+        })
+    }
+}
+
+/// A batch's quantities at its update's start.
+struct Start<'a> {
+    /// Agent and critic over the B steps.
+    fwd: Forward,
+    /// [B, d]: the critic's targets R, V(x) on the host, the advantages as trained on
+    /// (normalised with `saver.adv_norm`).
     returns_host: Vec<f32>,
-    /// [B, d]: the advantages as trained on (normalised with `saver.adv_norm`).
+    value_host: Vec<f32>,
     adv_host: Vec<f32>,
     /// [B, d]: the actor loss's Δp (`saver.target`).
-    target: Vec<f32>,
+    target: Cow<'a, [f32]>,
     /// μ and log σ of the steps on the host.
     mu_host: Vec<f32>,
     log_std_host: Vec<f32>,
     /// V-trace's statistics, when it runs.
     vtrace_stats: Vec<(&'static str, f32)>,
+}
+
+/// What one optimiser step trains on: some rows' forward, critic targets [N, d], Δp
+/// targets and advantages.
+struct StepRows<'a> {
+    fwd: &'a Forward,
+    returns: Tensor,
+    target: &'a [f32],
+    adv: &'a [f32],
 }
 
 /// The agent's loss on some rows: L_a and L_mon, the tensor whose gradient trains the
@@ -218,6 +249,13 @@ struct AgentLoss {
     actor: f32,
     mon: f32,
     loss: Tensor,
+    dmu: Option<Vec<f32>>,
+}
+
+/// One optimiser step's loss, checked and not yet applied.
+struct StepLoss {
+    loss: Tensor,
+    losses: Losses,
     dmu: Option<Vec<f32>>,
 }
 
@@ -230,30 +268,57 @@ struct Losses {
     grad_norm: f32,
 }
 
+impl Losses {
+    /// The mean of several steps' losses (summed in f64).
+    fn mean(all: &[Losses]) -> Self {
+        let mean = |f: fn(&Losses) -> f32| {
+            (all.iter().map(|l| f(l) as f64).sum::<f64>() / all.len().max(1) as f64) as f32
+        };
+        Self {
+            actor: mean(|l| l.actor),
+            mon: mean(|l| l.mon),
+            critic: mean(|l| l.critic),
+            grad_norm: mean(|l| l.grad_norm),
+        }
+    }
+}
+
 impl Saver {
+    /// Agent and critic over the observations `obs`.
+    fn forward(&self, obs: Tensor) -> Result<Forward> {
+        let out = self.agent.forward(&obs)?;
+        // The critic sees the policy's outputs as constants: its loss trains it alone.
+        let x = Tensor::cat(&[&obs, &out.mu, &out.log_std], 1)?.detach();
+        let value = self.critic.forward(&x)?;
+        Ok(Forward {
+            obs,
+            mu: out.mu,
+            raw: out.mu_raw,
+            log_std: out.log_std,
+            x,
+            value,
+        })
+    }
+
     /// The critic's targets, the advantages and the actor loss's Δp of `batch`, from
-    /// one forward of agent and critic over its rows.
-    fn start(&self, batch: &Batch) -> Result<Start> {
+    /// one forward of agent and critic over its rows and bootstrap rows.
+    fn start<'a>(&self, batch: &'a Batch) -> Result<Start<'a>> {
         let (b, o, d) = (batch.len(), self.layout.obs_dim, self.layout.aligned_dim);
         let (obs_all, n_ends) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
-        let out = self.agent.forward(&obs_all)?;
-        // The critic sees the policy's outputs as constants: its loss trains it alone.
-        let x_all = Tensor::cat(&[&obs_all, &out.mu, &out.log_std], 1)?.detach();
-        let v_all = self.critic.forward(&x_all)?; // [B+T, d]
-        let value = v_all.narrow(0, 0, b)?;
-        let mu = out.mu.narrow(0, 0, b)?;
-        let log_std = out.log_std.narrow(0, 0, b)?;
+        let all = self.forward(obs_all)?;
+        let v_all = &all.value; // [B+T, d]
+        let fwd = all.narrow(b)?;
+        let value_host: Vec<f32> = fwd.value.flatten_all()?.to_vec1()?;
         let mut vtrace_stats = Vec::new();
         let (returns_host, mut adv_host) = match self.vtrace {
             None => {
-                let r = batch_returns(batch, &batch.vector_reward, &v_all, n_ends, d, self.gamma)?;
-                let returns = Tensor::from_slice(&r, (b, d), &self.dev)?;
-                let adv: Vec<f32> = (&returns - &value)?.flatten_all()?.to_vec1()?;
+                let r = batch_returns(batch, &batch.vector_reward, v_all, n_ends, d, self.gamma)?;
+                let adv = r.iter().zip(&value_host).map(|(r, v)| r - v).collect();
                 (r, adv)
             }
             Some(vt) => {
                 let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
-                let log_pi = gaussian_log_prob(&self.layout, &mu, &log_std, &actions)?
+                let log_pi = gaussian_log_prob(&self.layout, &fwd.mu, &fwd.log_std, &actions)?
                     .detach()
                     .to_vec1::<f32>()?;
                 let corrected = vt.targets(
@@ -273,37 +338,26 @@ impl Saver {
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }
-        let returns = Tensor::from_slice(&returns_host, (b, d), &self.dev)?;
         let (mu_host, log_std_host): (Vec<f32>, Vec<f32>) = (
-            mu.flatten_all()?.to_vec1()?,
-            log_std.flatten_all()?.to_vec1()?,
+            fwd.mu.flatten_all()?.to_vec1()?,
+            fwd.log_std.flatten_all()?.to_vec1()?,
         );
         let target = match self.cfg.target {
-            DeltaTarget::Observed => batch.state_delta.clone(),
+            DeltaTarget::Observed => Cow::Borrowed(batch.state_delta.as_slice()),
             DeltaTarget::Predicted => {
-                let signal = SignalBatch {
-                    obs: &batch.obs,
-                    mu: &mu_host,
-                    log_std: &log_std_host,
-                    actions: &batch.actions,
-                    state_delta: &batch.state_delta,
-                    advantage: &adv_host,
-                    dmu: None,
-                };
-                predicted_delta(self.pcpn.pcpn(), &self.layout, &signal, &self.dev)?
+                let signal = SignalBatch::of(batch, &mu_host, &log_std_host, &adv_host, None);
+                Cow::Owned(predicted_delta(
+                    self.pcpn.pcpn(),
+                    &self.layout,
+                    &signal,
+                    &self.dev,
+                )?)
             }
         };
-        let obs = obs_all.narrow(0, 0, b)?;
-        let x = Tensor::cat(&[&obs, &mu, &log_std], 1)?.detach();
         Ok(Start {
-            out,
-            obs,
-            mu,
-            log_std,
-            x,
-            value,
-            returns,
+            fwd,
             returns_host,
+            value_host,
             adv_host,
             target,
             mu_host,
@@ -312,29 +366,58 @@ impl Saver {
         })
     }
 
-    /// SAVER's actor loss and monotonic penalty on rows `obs` with policy outputs `mu`,
-    /// `log_std` (in the graph), their PCPN inputs `x`, Δp `target`, advantages `adv`
-    /// and τ `taus` [d·rows·K].
-    #[allow(clippy::too_many_arguments)]
-    fn agent_loss(
-        &self,
-        obs: &Tensor,
-        x: &Tensor,
-        mu: &Tensor,
-        log_std: &Tensor,
-        target: &[f32],
-        adv: &[f32],
-        taus: &[f32],
-    ) -> Result<AgentLoss> {
-        let (b, d, k) = (obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
+    /// The loss of one optimiser step on `rows`: the critic's loss, SAVER's actor loss
+    /// and monotonic penalty and the saturation wall, checked before any step (a
+    /// non-finite one changes nothing).
+    fn step_loss(&mut self, rows: &StepRows) -> Result<StepLoss> {
+        let f = rows.fwd;
+        let (n, d, k) = (f.obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
+        let critic_loss =
+            ((&f.value - &rows.returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
+        let taus = uniform01(&mut self.rng, d * n * k);
+        let a = self.agent_loss(rows, &taus)?;
+        let loss = self.with_penalty((a.loss + &critic_loss)?, &f.raw)?;
+        let losses = Losses {
+            actor: check_finite("actor_loss", a.actor)?,
+            mon: check_finite("mon_loss", a.mon)?,
+            critic: check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
+            grad_norm: 0.0,
+        };
+        Ok(StepLoss {
+            loss,
+            losses,
+            dmu: a.dmu,
+        })
+    }
+
+    /// The optimiser step on a checked loss; its losses with the gradient norm, and
+    /// (fast path) dL/dμ per row.
+    fn take_step(&mut self, s: StepLoss) -> Result<(Losses, Option<Vec<f32>>)> {
+        let grads = s.loss.backward()?;
+        let grad_norm = self.opt.step(&grads)? as f32;
+        Ok((
+            Losses {
+                grad_norm,
+                ..s.losses
+            },
+            s.dmu,
+        ))
+    }
+
+    /// SAVER's actor loss and monotonic penalty on `rows` with τ `taus` [d·N·K].
+    fn agent_loss(&self, rows: &StepRows, taus: &[f32]) -> Result<AgentLoss> {
+        let f = rows.fwd;
+        let (b, d, k) = (f.obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
         match self.path {
             GradPath::Fast => {
                 // dL/dμ and dL/dlog σ by hand, then the surrogate Σ μ·dμ + Σ log σ·dlog σ
                 // carries them into the agent through autograd.
-                let g = self.pcpn.input_grad(x, target, adv, taus, &self.cfg)?;
+                let g = self
+                    .pcpn
+                    .input_grad(&f.x, rows.target, rows.adv, taus, &self.cfg)?;
                 let (dmu, dls) = policy_grads(&g.dx, self.layout.obs_dim, self.layout.mu_dim())?;
                 let dmu_host = dmu.flatten_all()?.to_vec1::<f32>()?;
-                let loss = ((mu * dmu)?.sum_all()? + (log_std * dls)?.sum_all()?)?;
+                let loss = ((&f.mu * dmu)?.sum_all()? + (&f.log_std * dls)?.sum_all()?)?;
                 Ok(AgentLoss {
                     actor: g.actor_loss,
                     mon: g.mon_loss,
@@ -346,11 +429,11 @@ impl Saver {
                 let (tau, cos) = tau_tensors(taus, d, b, k, &self.dev)?;
                 let l = saver_actor_losses(
                     self.pcpn.pcpn(),
-                    obs,
-                    mu,
-                    log_std,
-                    &matrix(target, b, d, &self.dev)?,
-                    &Tensor::from_slice(adv, (b, d), &self.dev)?,
+                    &f.obs,
+                    &f.mu,
+                    &f.log_std,
+                    &matrix(rows.target, b, d, &self.dev)?,
+                    &Tensor::from_slice(rows.adv, (b, d), &self.dev)?,
                     &tau,
                     &cos,
                     &self.cfg,
@@ -414,19 +497,17 @@ impl Saver {
         tune_loss: Option<f32>,
     ) -> Result<UpdateStats> {
         let d = self.layout.aligned_dim;
-        let (mu_abs_max, log_std_mean) = policy_diagnostics(&s.mu, &s.log_std)?;
-        let signal = SignalBatch {
-            obs: &batch.obs,
-            mu: &s.mu_host,
-            log_std: &s.log_std_host,
-            actions: &batch.actions,
-            state_delta: &batch.state_delta,
-            advantage: &s.adv_host,
-            dmu: dmu.as_deref(),
-        };
+        let (mu_abs_max, log_std_mean) = policy_diagnostics(&s.fwd.mu, &s.fwd.log_std)?;
+        let signal = SignalBatch::of(
+            batch,
+            &s.mu_host,
+            &s.log_std_host,
+            &s.adv_host,
+            dmu.as_deref(),
+        );
         let mut per_dim = super::per_dim::per_dim_stats(
             &s.returns_host,
-            &s.value.flatten_all()?.to_vec1::<f32>()?,
+            &s.value_host,
             &batch.vector_reward,
             &s.mu_host,
             &s.log_std_host,
@@ -472,43 +553,20 @@ impl Algorithm for Saver {
         if !self.cfg.one_step(batch.len()) {
             return self.update_epochs(batch);
         }
-        let (b, d, k) = (batch.len(), self.layout.aligned_dim, self.cfg.quantiles);
         let s = self.start(batch)?;
-        let critic_loss = ((&s.value - &s.returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
-        let taus = uniform01(&mut self.rng, d * b * k);
-        let a = self.agent_loss(
-            &s.obs,
-            &s.x,
-            &s.mu,
-            &s.log_std,
-            &s.target,
-            &s.adv_host,
-            &taus,
-        )?;
-        let raw = s.out.mu_raw.narrow(0, 0, b)?;
-        let loss = self.with_penalty((a.loss + &critic_loss)?, &raw)?;
-        // Checked before the step: a non-finite loss changes nothing.
-        let losses = Losses {
-            actor: check_finite("actor_loss", a.actor)?,
-            mon: check_finite("mon_loss", a.mon)?,
-            critic: check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
-            grad_norm: 0.0,
+        let (b, d) = (batch.len(), self.layout.aligned_dim);
+        let rows = StepRows {
+            fwd: &s.fwd,
+            returns: Tensor::from_slice(&s.returns_host, (b, d), &self.dev)?,
+            target: &s.target,
+            adv: &s.adv_host,
         };
+        let step = self.step_loss(&rows)?;
         // The PCPN's step on this batch, computed before anything changes.
-        let tune = self.tune_grads(&s.x, batch)?;
-        let grads = loss.backward()?;
-        let grad_norm = self.opt.step(&grads)? as f32;
+        let tune = self.tune_grads(&s.fwd.x, batch)?;
+        let (losses, dmu) = self.take_step(step)?;
         let tune_loss = self.apply_tune(tune)?;
-        self.finish(
-            batch,
-            s,
-            a.dmu,
-            Losses {
-                grad_norm,
-                ..losses
-            },
-            tune_loss,
-        )
+        self.finish(batch, s, dmu, losses, tune_loss)
     }
 
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {

@@ -117,7 +117,27 @@ pub struct SignalBatch<'a> {
     pub dmu: Option<&'a [f32]>,
 }
 
-impl SignalBatch<'_> {
+impl<'a> SignalBatch<'a> {
+    /// A batch's rows with the policy's μ and log σ, the advantages as trained on and
+    /// (where the update computed it) dL/dμ.
+    pub fn of(
+        batch: &'a crate::rollout::Batch,
+        mu: &'a [f32],
+        log_std: &'a [f32],
+        advantage: &'a [f32],
+        dmu: Option<&'a [f32]>,
+    ) -> Self {
+        Self {
+            obs: &batch.obs,
+            mu,
+            log_std,
+            actions: &batch.actions,
+            state_delta: &batch.state_delta,
+            advantage,
+            dmu,
+        }
+    }
+
     /// Rows B.
     fn rows(&self, layout: &EnvLayout) -> usize {
         self.obs.len() / layout.obs_dim.max(1)

@@ -5,19 +5,12 @@
 //! losses on its rows, with the agent's and critic's outputs of that moment. The PCPN,
 //! when it learns, takes its one step on the whole batch after the passes.
 
-use super::{Losses, Saver, Start};
-use crate::algo::{check_finite, Algorithm, UpdateStats};
-use crate::rng::uniform01;
+use super::{Losses, Saver, StepRows};
+use crate::algo::{Algorithm, UpdateStats};
 use crate::rollout::Batch;
 use crate::Result;
 use candle_core::Tensor;
 use rand::seq::SliceRandom;
-
-/// One minibatch's losses and (fast path) dL/dμ per row.
-struct Step {
-    losses: Losses,
-    dmu: Option<Vec<f32>>,
-}
 
 impl Saver {
     /// Several optimiser steps: a non-finite loss in a later one puts back the weights,
@@ -36,11 +29,15 @@ impl Saver {
     /// signal's dL/dμ the first pass's (each row once).
     fn epochs(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let (b, m) = (batch.len(), self.cfg.minibatches(batch.len()));
+        let (o, d, mu_dim) = (
+            self.layout.obs_dim,
+            self.layout.aligned_dim,
+            self.layout.mu_dim(),
+        );
         let s = self.start(batch)?;
-        let tune = self.tune_grads(&s.x, batch)?;
-        let mu_dim = self.layout.mu_dim();
+        let tune = self.tune_grads(&s.fwd.x, batch)?;
         let mut dmu = Some(vec![0f32; b * mu_dim]);
-        let mut sum = [0f64; 4];
+        let mut losses = Vec::with_capacity(self.cfg.epochs * m);
         let mut order: Vec<usize> = (0..b).collect();
         for epoch in 0..self.cfg.epochs {
             // One minibatch is the whole batch: its order changes nothing but the bits.
@@ -50,15 +47,28 @@ impl Saver {
             for j in 0..m {
                 // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
                 let idx = &order[j * b / m..(j + 1) * b / m];
-                let step = self.minibatch_step(batch, &s, idx)?;
-                let l = step.losses;
-                for (acc, v) in sum.iter_mut().zip([l.actor, l.mon, l.critic, l.grad_norm]) {
-                    *acc += v as f64;
-                }
+                let rows = |data: &[f32], w: usize| -> Vec<f32> {
+                    idx.iter()
+                        .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
+                        .collect()
+                };
+                let n = idx.len();
+                let fwd =
+                    self.forward(Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?)?;
+                let (target, adv) = (rows(&s.target, d), rows(&s.adv_host, d));
+                let step_rows = StepRows {
+                    fwd: &fwd,
+                    returns: Tensor::from_vec(rows(&s.returns_host, d), (n, d), &self.dev)?,
+                    target: &target,
+                    adv: &adv,
+                };
+                let step = self.step_loss(&step_rows)?;
+                let (l, step_dmu) = self.take_step(step)?;
+                losses.push(l);
                 if epoch == 0 {
-                    match (&mut dmu, step.dmu) {
-                        (Some(all), Some(rows)) => {
-                            for (&i, row) in idx.iter().zip(rows.chunks_exact(mu_dim)) {
+                    match (&mut dmu, step_dmu) {
+                        (Some(all), Some(part)) => {
+                            for (&i, row) in idx.iter().zip(part.chunks_exact(mu_dim)) {
                                 all[i * mu_dim..(i + 1) * mu_dim].copy_from_slice(row);
                             }
                         }
@@ -68,54 +78,7 @@ impl Saver {
             }
         }
         let tune_loss = self.apply_tune(tune)?;
-        let n = (self.cfg.epochs * m) as f64;
-        let mean = |i: usize| (sum[i] / n) as f32;
-        let losses = Losses {
-            actor: mean(0),
-            mon: mean(1),
-            critic: mean(2),
-            grad_norm: mean(3),
-        };
-        self.finish(batch, s, dmu, losses, tune_loss)
-    }
-
-    /// One optimiser step on the steps `idx`; its losses are checked before the step.
-    fn minibatch_step(&mut self, batch: &Batch, s: &Start, idx: &[usize]) -> Result<Step> {
-        let (o, d, k, n) = (
-            self.layout.obs_dim,
-            self.layout.aligned_dim,
-            self.cfg.quantiles,
-            idx.len(),
-        );
-        let rows = |data: &[f32], w: usize| -> Vec<f32> {
-            idx.iter()
-                .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
-                .collect()
-        };
-        let obs = Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?;
-        let out = self.agent.forward(&obs)?;
-        let x = Tensor::cat(&[&obs, &out.mu, &out.log_std], 1)?.detach();
-        let value = self.critic.forward(&x)?;
-        let returns = Tensor::from_vec(rows(&s.returns_host, d), (n, d), &self.dev)?;
-        let critic_loss = ((value - returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
-        let taus = uniform01(&mut self.rng, d * n * k);
-        let (target, adv) = (rows(&s.target, d), rows(&s.adv_host, d));
-        let a = self.agent_loss(&obs, &x, &out.mu, &out.log_std, &target, &adv, &taus)?;
-        let loss = self.with_penalty((a.loss + &critic_loss)?, &out.mu_raw)?;
-        let actor = check_finite("actor_loss", a.actor)?;
-        let mon = check_finite("mon_loss", a.mon)?;
-        let critic = check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?;
-        let grads = loss.backward()?;
-        let grad_norm = self.opt.step(&grads)? as f32;
-        Ok(Step {
-            losses: Losses {
-                actor,
-                mon,
-                critic,
-                grad_norm,
-            },
-            dmu: a.dmu,
-        })
+        self.finish(batch, s, dmu, Losses::mean(&losses), tune_loss)
     }
 }
 
