@@ -6,17 +6,16 @@
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
 mod epochs;
+mod targets;
 
 use super::pcpn_tune::PcpnTuner;
 use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
 use super::saver_signal::{predicted_delta, rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY};
-use super::{
-    batch_returns, check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats,
-};
+use super::{check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats};
 use crate::config::{DeltaTarget, RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
-use crate::nets::{gaussian_log_prob, Agent, Critic, Pcpn};
+use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, uniform01, SaverRng};
@@ -25,6 +24,7 @@ use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
 use saver_proto::NamedTensor;
 use std::borrow::Cow;
+use targets::Targets;
 
 /// The update's statistics, and last the PCPN's loss on the batch when it keeps
 /// learning ([`STATS`] without it).
@@ -172,7 +172,10 @@ impl Saver {
             dev: dev.clone(),
             ranks: Vec::new(),
             tuner,
-            vtrace: super::Vtrace::of(config),
+            vtrace: super::Vtrace::of(config).map(|v| super::Vtrace {
+                lambda: config.saver.gae_lambda as f32,
+                ..v
+            }),
         })
     }
 
@@ -309,32 +312,11 @@ impl Saver {
         let v_all = &all.value; // [B+T, d]
         let fwd = all.narrow(b)?;
         let value_host: Vec<f32> = fwd.value.flatten_all()?.to_vec1()?;
-        let mut vtrace_stats = Vec::new();
-        let (returns_host, mut adv_host) = match self.vtrace {
-            None => {
-                let r = batch_returns(batch, &batch.vector_reward, v_all, n_ends, d, self.gamma)?;
-                let adv = r.iter().zip(&value_host).map(|(r, v)| r - v).collect();
-                (r, adv)
-            }
-            Some(vt) => {
-                let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
-                let log_pi = gaussian_log_prob(&self.layout, &fwd.mu, &fwd.log_std, &actions)?
-                    .detach()
-                    .to_vec1::<f32>()?;
-                let corrected = vt.targets(
-                    batch,
-                    &self.layout,
-                    &batch.vector_reward,
-                    &v_all.detach(),
-                    n_ends,
-                    d,
-                    self.gamma,
-                    &log_pi,
-                )?;
-                vtrace_stats = corrected.stats;
-                (corrected.targets, corrected.advantages)
-            }
-        };
+        let Targets {
+            returns: returns_host,
+            advantages: mut adv_host,
+            vtrace_stats,
+        } = self.targets(batch, &fwd, v_all, &value_host, n_ends)?;
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }

@@ -496,5 +496,6 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         pcpn_tune_lr: 0.0,
         epochs: 1,
         minibatch_size: 0,
+        gae_lambda: 1.0,
     }
 }

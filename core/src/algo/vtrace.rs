@@ -15,6 +15,9 @@ pub struct Vtrace {
     pub rho_bar: f32,
     /// c̄.
     pub c_bar: f32,
+    /// λ, the traces' decay on top of c̄: c_t = λ·min(c̄, π/μ) (IMPALA's Remark 2; 1 but
+    /// in SAVER with `saver.gae_lambda`).
+    pub lambda: f32,
 }
 
 /// What an update learns from under V-trace.
@@ -40,6 +43,7 @@ impl Vtrace {
         config.vtrace.then_some(Self {
             rho_bar: config.rho_bar as f32,
             c_bar: config.c_bar as f32,
+            lambda: 1.0,
         })
     }
 
@@ -67,7 +71,10 @@ impl Vtrace {
             .map(|(p, m)| (p - m).exp())
             .collect();
         let rho: Vec<f32> = ratio.iter().map(|r| r.min(self.rho_bar)).collect();
-        let cs: Vec<f32> = ratio.iter().map(|r| r.min(self.c_bar)).collect();
+        let cs: Vec<f32> = ratio
+            .iter()
+            .map(|r| self.lambda * r.min(self.c_bar))
+            .collect();
         let v = values.narrow(0, 0, b)?.flatten_all()?.to_vec1::<f32>()?;
         let (bootstrap, ends) = bootstrap_and_ends(batch, values, n_ends, c)?;
         let (targets, adv) = crate::returns::vtrace(

@@ -83,6 +83,15 @@ pub struct SaverConfig {
     /// Steps per minibatch of [`Self::epochs`]; 0: the whole batch.
     #[serde(default)]
     pub minibatch_size: usize,
+    /// λ of the vector advantage: GAE(λ) per coordinate on the vector critic, the
+    /// critic's target A + V (docs/ALGORITHM.md §6). 1: the n-step returns of the
+    /// rollout (the paper).
+    #[serde(default = "no_trace_decay")]
+    pub gae_lambda: f64,
+}
+
+fn no_trace_decay() -> f64 {
+    1.0
 }
 
 fn one_pass() -> usize {
@@ -239,6 +248,7 @@ impl RunConfig {
                 pcpn_tune_lr: 0.0,
                 epochs: 1,
                 minibatch_size: 0,
+                gae_lambda: 1.0,
             },
             ppo: PpoConfig::default(),
             pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
@@ -341,6 +351,12 @@ impl RunConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("{v} must be finite and >= 0"));
             }
+        }
+        if !(0.0..=1.0).contains(&s.gae_lambda) {
+            return bad(
+                "saver.gae_lambda",
+                format!("{} is not in [0, 1]", s.gae_lambda),
+            );
         }
         if !(1..=1000).contains(&s.epochs) {
             return bad("saver.epochs", format!("{} is not in 1..=1000", s.epochs));
@@ -508,6 +524,13 @@ mod tests {
             .to_string()
             .contains("twice"));
         let mut c = ok.clone();
+        for bad in [1.5, -0.1, f64::NAN] {
+            c.saver.gae_lambda = bad;
+            let e = crate::algo::validate(&c).unwrap_err().to_string();
+            assert!(e.contains("saver.gae_lambda") && e.contains("not in [0, 1]"), "{e}");
+        }
+        c.saver.gae_lambda = 0.0;
+        crate::algo::validate(&c).unwrap();
         c.saver.epochs = 0;
         let e = crate::algo::validate(&c).unwrap_err().to_string();
         assert!(

@@ -148,6 +148,9 @@ pub struct SaverSettings {
     #[arg(id = "saver_minibatch_size", value_name = "N", long = "saver-minibatch-size", help = help("SAVER: steps per minibatch of --saver-epochs (0: the whole batch)", "saver.minibatch_size"))]
     #[serde(rename = "minibatch_size")]
     pub saver_minibatch_size: Option<usize>,
+    #[arg(id = "saver_gae_lambda", value_name = "LAMBDA", long = "saver-gae-lambda", allow_hyphen_values = true, help = help("SAVER: λ of GAE(λ) on the vector critic, per coordinate (1: the rollout's n-step returns, the paper)", "saver.gae_lambda"))]
+    #[serde(rename = "gae_lambda")]
+    pub saver_gae_lambda: Option<f64>,
     #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
     pub qrrl_spread: Option<f64>,
     #[arg(long, help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "saver.qrrl_vector"))]
