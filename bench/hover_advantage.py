@@ -4,7 +4,8 @@ learner at each discount γ (docs/ALGORITHM.md §7.1, issue 31).
 
 1. Runs the policy deterministically from reset seeds 0..E-1 and keeps the final state
    of every episode that did not reach the goal (a "hover" state: prints its distance
-   to the goal, speed and |μ|).
+   to the goal, speed and |μ|, and μ along a line of states at rest through it: where
+   it crosses zero is where the deterministic policy stops).
 2. At each such state, starts M rollouts of the stochastic policy after a first action
    of μ + σ·u and M after μ − σ·u, u the sign of (g − p) per coordinate (towards the
    goal / away from it), and computes each rollout's discounted return of the vector
@@ -60,6 +61,14 @@ for ep in range(opts.episodes):
         mu = net.mean(o[None].astype(np.float32))[0]
         print(f"episode {ep}: ends {np.abs(o[0:2] - o[4:6]).round(3)} from the goal, speed "
               f"{np.abs(o[2:4]).max():.3f}, |mu| {np.abs(mu).max():.3f}")
+        # The mean along the farther coordinate k at rest, p_k - g_k from -0.15 to 0.15:
+        # where it crosses zero is where the deterministic policy stops.
+        k = int(np.argmax(np.abs(o[0:2] - o[4:6])))
+        line = np.repeat(o[None], 13, axis=0)
+        line[:, 2:4] = 0.0
+        line[:, k] = o[4 + k] + np.linspace(-0.15, 0.15, 13)
+        print(f"  mu_{k} at rest, p_{k} - g_{k} = -0.15 .. 0.15: "
+              + " ".join(f"{m:+.2f}" for m in net.mean(line.astype(np.float32))[:, k]))
         hover.append(o)
 print(f"{len(hover)} of {opts.episodes} episodes end short of the goal; sigma = {net.sigma.round(3)}")
 if not hover:

@@ -55,6 +55,12 @@ class EnvDecl:
         it; None: the env's own `terminated` is the success.
     vector_reward: optional f(obs, next_obs, env_reward, info) -> array of d, used
         instead of |p - g| - |p' - g| (e.g. MO-Gymnasium's array reward).
+    complete_at_success: on the step that ends an episode inside the success box,
+        each coordinate's progress reward also gets the rest of its distance,
+        |p'_j - g_j| (capped at max_change), so a successful episode is credited the
+        whole way to the goal and stopping short of the box costs the whole remainder
+        (results/README.md, "The horizon and the control cost"). Needs success_radius
+        and the default progress reward. Off by default.
     """
 
     name: str
@@ -67,6 +73,7 @@ class EnvDecl:
     goal: Optional[slice] = None
     success_radius: Optional[float] = None
     vector_reward: Optional[Callable] = field(default=None, repr=False)
+    complete_at_success: bool = False
 
     def __post_init__(self):
         self.obs_low = np.asarray(self.obs_low, dtype=np.float64)
@@ -95,6 +102,9 @@ class EnvDecl:
                                f"observation, as many as the aligned ones")
         if self.success_radius is not None and not (math.isfinite(self.success_radius) and self.success_radius > 0):
             raise EnvError(f"{self.name}: success_radius {self.success_radius} must be finite and > 0")
+        if self.complete_at_success and (self.success_radius is None or self.vector_reward is not None):
+            raise EnvError(f"{self.name}: complete_at_success needs a success_radius and the default progress "
+                           f"reward (no vector_reward)")
         if not (math.isfinite(self.max_change) and self.max_change > 0):
             raise EnvError(f"{self.name}: max_change {self.max_change} must be finite and > 0")
         if self.continuous < 0 or self.choices < 0 or self.continuous + self.choices == 0:
@@ -223,12 +233,14 @@ class EnvDecl:
                 raise EnvError(f"{self.name}: vector_reward gave {r.shape[1]} values for d = {self.dim}")
         else:
             r = np.abs(p - g) - np.abs(q - g)
-        if check:
-            self.check_steps(delta, r, "a step")
         if self.success_radius is not None:
             success = np.max(np.abs(q - g), axis=1) < self.success_radius
         else:
             success = np.asarray(terminated, dtype=bool)
+        if self.complete_at_success:
+            r = np.where(success[:, None], np.minimum(r + np.abs(q - g), self.max_change), r)
+        if check:
+            self.check_steps(delta, r, "a step")
         return delta, r, success
 
     def check_steps(self, delta: np.ndarray, r: np.ndarray, where: str) -> None:

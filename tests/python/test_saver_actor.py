@@ -17,6 +17,7 @@ processes:
     python3 tests/python/test_saver_actor.py target/release/saver
 """
 import csv
+import dataclasses
 import importlib
 import json
 import os
@@ -439,6 +440,36 @@ def test_env_worker_processes_step_as_the_actor_does():
             rows.append([{k: v for k, v in r.items() if k not in ("wall_s", "steps_per_s")} for r in csv.DictReader(f)])
     assert len(rows[0]) > 10 and rows[0] == rows[1], (len(rows[0]), len(rows[1]))
     print(f"  {len(rows[0])} metrics rows equal with and without env worker processes")
+
+
+def test_progress_completed_at_success():
+    """EnvDecl(complete_at_success=True) on the point mass (g = (0.5, 0.5), radius 0.05,
+    max_change 0.2), by hand: a step from (0.42, 0.44) to (0.47, 0.46) ends inside the
+    box 0.03 / 0.04 short, so the progress 0.05 / 0.02 gets them added: 0.08 / 0.06, the
+    whole distance from (0.42, 0.44). A step that stays outside keeps its progress; one
+    from (0.29, 0.5) to (0.47, 0.5) would get 0.18 + 0.03 = 0.21 and is capped at 0.2."""
+    from saver_actor.examples import pointmass
+    _, plain = pointmass()
+    done = dataclasses.replace(plain, complete_at_success=True)
+    g = [0.5, 0.5]
+
+    def step(decl, p, q):
+        o = np.array([[*p, 0.0, 0.0, *g]])
+        n = np.array([[*q, 0.0, 0.0, *g]])
+        _, r, success = decl.outcome(o, n, [0.0], [False], [{}])
+        return np.round(r[0], 6).tolist(), bool(success[0])
+
+    assert step(plain, (0.42, 0.44), (0.47, 0.46)) == ([0.05, 0.02], True)
+    assert step(done, (0.42, 0.44), (0.47, 0.46)) == ([0.08, 0.06], True)
+    assert step(done, (0.30, 0.30), (0.35, 0.32)) == ([0.05, 0.02], False)
+    assert step(done, (0.29, 0.50), (0.47, 0.50)) == ([0.2, 0.0], True)
+    for kw in (dict(success_radius=None), dict(vector_reward=lambda o, n, r, i: n[0:2])):
+        try:
+            dataclasses.replace(plain, complete_at_success=True, **kw)
+            raise AssertionError(f"complete_at_success with {kw} was accepted")
+        except EnvError as e:
+            assert "complete_at_success needs a success_radius" in str(e), e
+    print("  completed progress: 0.08 / 0.06 on the step into the box, capped at max_change")
 
 
 def test_check_finds_what_a_run_would_refuse():

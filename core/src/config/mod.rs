@@ -527,7 +527,10 @@ mod tests {
         for bad in [1.5, -0.1, f64::NAN] {
             c.saver.gae_lambda = bad;
             let e = crate::algo::validate(&c).unwrap_err().to_string();
-            assert!(e.contains("saver.gae_lambda") && e.contains("not in [0, 1]"), "{e}");
+            assert!(
+                e.contains("saver.gae_lambda") && e.contains("not in [0, 1]"),
+                "{e}"
+            );
         }
         c.saver.gae_lambda = 0.0;
         crate::algo::validate(&c).unwrap();
