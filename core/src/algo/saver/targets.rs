@@ -144,4 +144,38 @@ mod tests {
         // The three λ give three different targets (the recursion is not degenerate).
         assert!(seen[0] != seen[1] && seen[1] != seen[2]);
     }
+
+    /// On-policy every ratio π/μ is 1, so V-trace's traces are c_t = λ and its critic
+    /// targets are GAE(λ)'s: v_t − V(x_t) = δ_t + γλ·(v_(t+1) − V(x_(t+1))). Angle d = 2,
+    /// 4 trajectories of 5 steps, λ = 0.5; the payload is the learner's own (μ, log σ).
+    #[test]
+    fn vtrace_on_policy_decays_its_traces_by_lambda() {
+        let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
+        let l = spec.layout();
+        let done = (0..20).map(|i| i == 7).collect();
+        let mut batch = random_batch(&l, 4, 5, 3, 0.8, done);
+        let mut targets = Vec::new();
+        for vtrace in [false, true] {
+            let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+            (config.vtrace, config.saver.gae_lambda) = (vtrace, 0.5);
+            let s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+            let obs = matrix(&batch.obs, 20, l.obs_dim, &Device::Cpu).unwrap();
+            let f = s.forward(obs).unwrap();
+            let (mu, ls): (Vec<Vec<f32>>, Vec<Vec<f32>>) =
+                (f.mu.to_vec2().unwrap(), f.log_std.to_vec2().unwrap());
+            batch.payload = mu
+                .iter()
+                .zip(&ls)
+                .flat_map(|(m, s)| m.iter().chain(s))
+                .copied()
+                .collect();
+            targets.push(s.start(&batch).unwrap().returns_host);
+        }
+        for (i, (plain, vt)) in targets[0].iter().zip(&targets[1]).enumerate() {
+            assert!(
+                (plain - vt).abs() < 1e-5,
+                "entry {i}: GAE {plain} against V-trace {vt}"
+            );
+        }
+    }
 }
