@@ -32,7 +32,7 @@ for ep in range(opts.episodes):
         a = np.clip(net.deterministic(np.asarray(o, np.float32)[None])[0], -1.0, 1.0)
         o, _, _, _, info = env.step(a)
         if reached is None:
-            ctrl -= float(info["reward_ctrl"]) if "reward_ctrl" in info else float(np.square(a).sum())
+            ctrl -= float(info["reward_ctrl"])
             dist -= float(info["reward_dist"])
         d = float(np.abs(o[8:10]).max())
         prof[t] += [np.square(a).sum(), d, np.abs(o[6:8]).sum()]

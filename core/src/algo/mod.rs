@@ -386,6 +386,36 @@ pub(crate) fn batch_returns(
     ))
 }
 
+/// GAE(λ) advantages of `rewards` ([B, c]) and the critic's targets A + V, for PPO and
+/// SAVER's `saver.gae_lambda`: `values` is V(o_t) of the B steps on the host ([B, c]),
+/// `v_all` V at [`update_rows`]' rows ([rows] or [rows, c]; `n_ends` timeouts at their
+/// end).
+pub(crate) fn batch_gae(
+    batch: &crate::rollout::Batch,
+    rewards: &[f32],
+    values: &[f32],
+    v_all: &Tensor,
+    n_ends: usize,
+    gamma: f32,
+    lambda: f32,
+) -> Result<(Vec<f32>, Vec<f32>)> {
+    let c = rewards.len() / batch.len().max(1);
+    let (bootstrap, ends) = bootstrap_and_ends(batch, v_all, n_ends, c)?;
+    let adv = crate::returns::gae(
+        rewards,
+        values,
+        &batch.done,
+        &bootstrap,
+        ends.as_deref(),
+        batch.n_steps,
+        c,
+        gamma,
+        lambda,
+    );
+    let returns = adv.iter().zip(values).map(|(a, v)| a + v).collect();
+    Ok((adv, returns))
+}
+
 /// log μ(a|o) of every step under the Gaussian behaviour policy that acted, from the
 /// (μ, log σ) its actor recorded in the payload (PPO's π_old, V-trace's μ).
 pub(crate) fn behaviour_log_probs(

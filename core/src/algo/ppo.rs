@@ -10,14 +10,12 @@
 //! and the one of V_old + clip(V − V_old, ±clip). With `ppo.vector` the critic is
 //! V(o) ∈ R^d on the vector reward, GAE runs per coordinate and Â is the sum over them.
 
-use super::{
-    bootstrap_and_ends, check_finite, policy_diagnostics, update_rows, Algorithm, UpdateStats,
-};
+use super::{batch_gae, check_finite, policy_diagnostics, update_rows, Algorithm, UpdateStats};
 use crate::config::{PpoConfig, RunConfig};
 use crate::env::EnvLayout;
 use crate::nets::{gaussian_log_prob, Agent, Critic};
 use crate::optim::Optimizer;
-use crate::returns::{gae, normalize_advantages};
+use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, SaverRng};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
@@ -192,24 +190,13 @@ impl Ppo {
         )?;
         let v_all = self.critic.forward(&rows)?.detach(); // [B + T + k, c]
         let values = v_all.narrow(0, 0, b)?.flatten_all()?.to_vec1::<f32>()?;
-        let (bootstrap, ends) = bootstrap_and_ends(batch, &v_all, k, c)?;
         let rewards = if c == 1 {
             batch.scalar_reward()
         } else {
             batch.vector_reward.clone()
         };
-        let adv = gae(
-            &rewards,
-            &values,
-            &batch.done,
-            &bootstrap,
-            ends.as_deref(),
-            batch.n_steps,
-            c,
-            self.gamma,
-            self.cfg.gae_lambda as f32,
-        );
-        let returns: Vec<f32> = adv.iter().zip(&values).map(|(a, v)| a + v).collect();
+        let lambda = self.cfg.gae_lambda as f32;
+        let (adv, returns) = batch_gae(batch, &rewards, &values, &v_all, k, self.gamma, lambda)?;
         let step_adv = adv.chunks_exact(c).map(|a| a.iter().sum()).collect();
         Ok((step_adv, returns, values))
     }

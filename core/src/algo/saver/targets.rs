@@ -4,9 +4,8 @@
 //! traces decayed by the same λ).
 
 use super::{Forward, Saver};
-use crate::algo::{batch_returns, bootstrap_and_ends, matrix};
+use crate::algo::{batch_gae, batch_returns, matrix};
 use crate::nets::gaussian_log_prob;
-use crate::returns::gae;
 use crate::rollout::Batch;
 use crate::Result;
 use candle_core::Tensor;
@@ -32,7 +31,7 @@ impl Saver {
         n_ends: usize,
     ) -> Result<Targets> {
         let (b, d) = (batch.len(), self.layout.aligned_dim);
-        let done = |returns: Vec<f32>, advantages| Targets {
+        let plain = |returns: Vec<f32>, advantages| Targets {
             returns,
             advantages,
             vtrace_stats: Vec::new(),
@@ -58,25 +57,19 @@ impl Saver {
                 vtrace_stats: corrected.stats,
             });
         }
+        let rewards = &batch.vector_reward;
         if self.cfg.gae_lambda < 1.0 {
-            let (bootstrap, ends) = bootstrap_and_ends(batch, v_all, n_ends, d)?;
-            let adv = gae(
-                &batch.vector_reward,
-                value_host,
-                &batch.done,
-                &bootstrap,
-                ends.as_deref(),
-                batch.n_steps,
-                d,
-                self.gamma,
-                self.cfg.gae_lambda as f32,
-            );
-            let r = adv.iter().zip(value_host).map(|(a, v)| a + v).collect();
-            return Ok(done(r, adv));
+            let lambda = self.cfg.gae_lambda as f32;
+            let (adv, r) = batch_gae(
+                batch, rewards, value_host, v_all, n_ends, self.gamma, lambda,
+            )?;
+            return Ok(plain(r, adv));
         }
-        let r = batch_returns(batch, &batch.vector_reward, v_all, n_ends, d, self.gamma)?;
+        // λ = 1 keeps the n-step recursion itself (GAE(1) is the same sum in another
+        // order, equal only to rounding).
+        let r = batch_returns(batch, rewards, v_all, n_ends, d, self.gamma)?;
         let adv = r.iter().zip(value_host).map(|(r, v)| r - v).collect();
-        Ok(done(r, adv))
+        Ok(plain(r, adv))
     }
 }
 
