@@ -48,6 +48,9 @@ pub struct ActorSettings {
     pub seed: u64,
     /// The env's step limit.
     pub max_episode_steps: u32,
+    /// Complete the progress reward at success ([`RunConfig::complete_at_success`]):
+    /// what a custom env's actor does; preset actors have nothing to complete.
+    pub complete_at_success: bool,
     /// The environment.
     pub env: EnvSpec,
     /// The behaviour policy: how to act and what each step records.
@@ -123,6 +126,7 @@ pub fn settings_from_metadata(meta: &HashMap<String, String>) -> crate::Result<A
         rollout: 1,
         seed: 0,
         max_episode_steps,
+        complete_at_success: false,
         env,
         policy,
     })
@@ -137,6 +141,7 @@ impl ActorSettings {
             rollout: config.rollout,
             seed: config.seed,
             max_episode_steps: config.max_episode_steps,
+            complete_at_success: config.complete_at_success,
             env: config.env.clone(),
             policy: crate::algo::policy_family(config),
         }

@@ -53,6 +53,7 @@ impl From<&ActorSettings> for pb::RunSettings {
             rollout: s.rollout,
             seed: s.seed,
             max_episode_steps: s.max_episode_steps,
+            complete_at_success: s.complete_at_success,
             env: Some((&s.env).into()),
             policy: Some(pb::PolicySpec {
                 family: s.policy.name().to_string(),
@@ -93,6 +94,7 @@ impl TryFrom<&pb::RunSettings> for ActorSettings {
             rollout: s.rollout,
             seed: s.seed,
             max_episode_steps: s.max_episode_steps,
+            complete_at_success: s.complete_at_success,
             env,
             policy,
         })

@@ -238,6 +238,12 @@ class Actor:
         rng = np.random.default_rng([s.seed, 1000 + reply.actor_id])
         weights = _Weights(stub, self.conn)
         rollouts = _Rollouts(stub, self.conn, reply.actor_id, reply.session)
+        complete = self.decl.completes(s.complete_at_success)
+        if s.complete_at_success and not complete and self.summary.registrations == 1:
+            why = ("sets complete_at_success=False" if self.decl.can_complete
+                   else "has no success_radius or a vector_reward of its own")
+            self.log(f"{self.name}: the run completes the progress reward at success, but {self.decl.name} {why}: "
+                     f"its rewards stay as they are")
         try:
             # Fresh envs for every registration: the learner counts episodes from seq 0.
             obs = np.stack(self._reset(range(e), s.seed, reply.actor_id))
@@ -262,7 +268,7 @@ class Actor:
                         raise Refused(f"weights version {version} do not decode: {e}") from None
                     policy = policy_for(s.policy.family, tensors, s.env.layout, params)
                     policy_version = version
-                msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps)
+                msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps, complete)
                 msg.actor_id, msg.session, msg.seq, msg.policy_version = reply.actor_id, reply.session, seq, version
                 rollouts.send(msg)
                 self.summary.rollouts += 1
@@ -288,8 +294,9 @@ class Actor:
         """Closes the envs (and ends their worker processes, if any)."""
         self.envs.close()
 
-    def _collect(self, policy, rng, obs, running, returns, n, limit):
-        """n steps of every env; the rollout message (env-major) and the new observations."""
+    def _collect(self, policy, rng, obs, running, returns, n, limit, complete=False):
+        """n steps of every env; the rollout message (env-major) and the new observations
+        (`complete`: the progress completed at success, EnvDecl.completes)."""
         d = self.decl
         e = self.n_envs
         o_all = np.empty((e, n + 1, d.obs_dim), dtype=np.float32)
@@ -310,7 +317,7 @@ class Actor:
             nxt, rewards, terminated, truncated, infos = self.envs.step(env_actions)
             env_time += time.perf_counter() - t0
             # Bounds are checked for the whole rollout below (before anything is sent).
-            delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False)
+            delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False, complete=complete)
             delta_all[:, t], rew_all[:, t] = delta, r
             running += 1
             returns += r.astype(np.float32).sum(axis=1)

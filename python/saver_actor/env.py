@@ -59,8 +59,10 @@ class EnvDecl:
         each coordinate's progress reward also gets the rest of its distance,
         |p'_j - g_j| (capped at max_change), so a successful episode is credited the
         whole way to the goal and stopping short of the box costs the whole remainder
-        (results/README.md, "The horizon and the control cost"). Needs success_radius
-        and the default progress reward. Off by default.
+        (docs/ALGORITHM.md §7.1). None (the default): as the learner's run says
+        (RunSettings.complete_at_success; on for SAVER on a custom env), where the env
+        declares a success_radius and keeps the default progress reward. True needs
+        both; False: never.
     """
 
     name: str
@@ -73,7 +75,7 @@ class EnvDecl:
     goal: Optional[slice] = None
     success_radius: Optional[float] = None
     vector_reward: Optional[Callable] = field(default=None, repr=False)
-    complete_at_success: bool = False
+    complete_at_success: Optional[bool] = None
 
     def __post_init__(self):
         self.obs_low = np.asarray(self.obs_low, dtype=np.float64)
@@ -102,13 +104,26 @@ class EnvDecl:
                                f"observation, as many as the aligned ones")
         if self.success_radius is not None and not (math.isfinite(self.success_radius) and self.success_radius > 0):
             raise EnvError(f"{self.name}: success_radius {self.success_radius} must be finite and > 0")
-        if self.complete_at_success and (self.success_radius is None or self.vector_reward is not None):
+        if self.complete_at_success and not self.can_complete:
             raise EnvError(f"{self.name}: complete_at_success needs a success_radius and the default progress "
                            f"reward (no vector_reward)")
         if not (math.isfinite(self.max_change) and self.max_change > 0):
             raise EnvError(f"{self.name}: max_change {self.max_change} must be finite and > 0")
         if self.continuous < 0 or self.choices < 0 or self.continuous + self.choices == 0:
             raise EnvError(f"{self.name}: the env needs at least one action dim")
+
+    @property
+    def can_complete(self) -> bool:
+        """Whether the progress reward can be completed at success: a success_radius
+        and the default progress reward."""
+        return self.success_radius is not None and self.vector_reward is None
+
+    def completes(self, run_asks: bool) -> bool:
+        """Whether this env's steps complete the progress at success in a run whose
+        settings ask `run_asks` (complete_at_success None follows the run)."""
+        if self.complete_at_success is None:
+            return run_asks and self.can_complete
+        return self.complete_at_success
 
     @property
     def obs_dim(self) -> int:
@@ -218,10 +233,11 @@ class EnvDecl:
         """The env's action for each of the agent's [E, action_dim] (env_actions)."""
         return env_actions(actions, self.continuous, space)
 
-    def outcome(self, obs, next_obs, rewards, terminated, infos, check=True):
+    def outcome(self, obs, next_obs, rewards, terminated, infos, check=True, complete=None):
         """(state_delta, vector_reward, success) of one step of every env, [E, d] and
         [E]; checked against max_change unless `check` is false (the actor checks a
-        whole rollout at once: check_steps)."""
+        whole rollout at once: check_steps). `complete`: whether to complete the
+        progress at success (None: complete_at_success, None there counting as no)."""
         a = self.aligned
         p, q = obs[:, a], next_obs[:, a]
         g = 0.0 if self.goal is None else obs[:, self.goal]
@@ -237,7 +253,7 @@ class EnvDecl:
             success = np.max(np.abs(q - g), axis=1) < self.success_radius
         else:
             success = np.asarray(terminated, dtype=bool)
-        if self.complete_at_success:
+        if (self.complete_at_success if complete is None else complete):
             r = np.where(success[:, None], np.minimum(r + np.abs(q - g), self.max_change), r)
         if check:
             self.check_steps(delta, r, "a step")

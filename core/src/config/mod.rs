@@ -163,6 +163,14 @@ pub struct RunConfig {
     /// At the step limit, bootstrap the return from the value of the observation
     /// reached, instead of treating the limit as terminal (the paper's code).
     pub bootstrap_timeout: bool,
+    /// Ask the actors of a custom env with a success radius and the default progress
+    /// reward to complete it at success: on the step that ends an episode inside the
+    /// success box, coordinate j's reward also gets |p'_j − g_j| (the rest of its
+    /// distance, capped at max_change), so a successful episode is credited the whole
+    /// way to the goal (docs/ALGORITHM.md §7.1). Travels to the actors in
+    /// RunSettings; a preset env's actors have nothing to complete. Off: the paper.
+    #[serde(default)]
+    pub complete_at_success: bool,
     /// A2C value-loss weight.
     pub value_coef: f64,
     /// Off-policy correction of rollouts acted by an older policy (async mode): V-trace
@@ -229,6 +237,7 @@ impl RunConfig {
                 .and_then(|k| k.fixed_episode_steps())
                 .unwrap_or(1000),
             bootstrap_timeout: false,
+            complete_at_success: false,
             value_coef: 0.5,
             vtrace: false,
             rho_bar: 1.0,
@@ -317,6 +326,16 @@ impl RunConfig {
         }
         if self.max_episode_steps == 0 {
             return bad("max_episode_steps", "must be >= 1".into());
+        }
+        if self.complete_at_success && self.env.kind().is_some() {
+            return bad(
+                "complete_at_success",
+                format!(
+                    "the preset env {} has its own reward; only a custom env's actors \
+                     complete the progress reward at success",
+                    self.env.name()
+                ),
+            );
         }
         if !(self.value_coef.is_finite() && self.value_coef >= 0.0) {
             return bad(

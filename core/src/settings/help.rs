@@ -134,7 +134,7 @@ mod tests {
         );
         assert_eq!(
             help("Discount γ", "gamma"),
-            "Discount γ [default: 0.99] (saver on a custom env: 0.9)"
+            "Discount γ [default: 0.99] (saver on a custom env: 0.97)"
         );
         assert_eq!(
             help("Rollout", "rollout"),

@@ -227,6 +227,8 @@ pub struct RunSettings {
     pub max_episode_steps: Option<u32>,
     #[arg(long, help = help("At the step limit, bootstrap the return from the value of the state reached (the paper: the limit is terminal)", "bootstrap_timeout"))]
     pub bootstrap_timeout: Option<bool>,
+    #[arg(long, help = help("Custom env: the actors credit a step that ends inside the success box with each coordinate's remaining distance |p' − g| (the default progress reward only)", "complete_at_success"))]
+    pub complete_at_success: Option<bool>,
     #[arg(long, allow_hyphen_values = true, help = help("A2C: weight of the value loss", "value_coef"))]
     pub value_coef: Option<f64>,
     #[arg(long, help = help("Correct rollouts acted by an older policy (async) with V-trace targets and ratio-weighted advantages (A2C, SAVER)", "vtrace"))]
