@@ -54,8 +54,8 @@ for variant in opts.algos.split(","):
         flags += opts.extra.split()
         name = f"{decl.name}-{algo}-seed{seed}" + "".join(flags).replace("-", "_")
         shutil.rmtree(os.path.join(out, name), ignore_errors=True)  # a fresh run, not a resumed one
-        before, after, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
-                                           store if saver else None, name, opts.max_steps, out, 100 * seed)
+        before, after, _, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
+                                              store if saver else None, name, opts.max_steps, out, 100 * seed)
         print(json.dumps({"env": decl.name, "algo": variant, "extra": opts.extra, "seed": seed, "steps": opts.steps,
                           "wall_s": round(wall, 1), "untrained": rounded(before), "trained": rounded(after)}), flush=True)
 if store is not None:

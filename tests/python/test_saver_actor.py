@@ -629,7 +629,8 @@ def custom_env(factory):
 def custom_run(factory, algo, steps, extra=(), pcpn=None, name=None, max_steps=50, out=None, actor_seed=0):
     """A learner on the env of `factory` (saver_actor.examples:NAME) and two Python actor
     processes of 4 envs each (their samples feed `pcpn`, a pcpn-trainer, for SAVER);
-    returns (untrained, trained) from `evaluate` and the run's RegisterReply.settings."""
+    returns (untrained, trained) from `evaluate`, the run's RegisterReply.settings and
+    its wall time."""
     make_env, decl = custom_env(factory)
     out = out or TMP
     cfg = os.path.join(out, f"{decl.name}.toml")
@@ -665,7 +666,7 @@ def custom_run(factory, algo, steps, extra=(), pcpn=None, name=None, max_steps=5
         before = evaluate(untrained, settings, make_env, decl, max_steps)
         after = evaluate(trained, settings, make_env, decl, max_steps)
         print(f"  {decl.name} {algo}: {status.steps} steps in {wall:.0f} s; untrained {before}, trained {after}")
-        return before, after, settings
+        return before, after, settings, wall
     finally:
         srv.stop()
         for a in actors:
@@ -675,7 +676,7 @@ def custom_run(factory, algo, steps, extra=(), pcpn=None, name=None, max_steps=5
 
 def reacher_run(algo, steps, extra=(), pcpn=None, name=None):
     """Reacher-v5 (50 steps): the final |fingertip - target| untrained and trained."""
-    before, after, settings = custom_run("saver_actor.examples:reacher", algo, steps, extra, pcpn, name)
+    before, after, settings, _ = custom_run("saver_actor.examples:reacher", algo, steps, extra, pcpn, name)
     # The actors complete the progress at success for SAVER's runs only (its custom-env default).
     assert settings.complete_at_success == (algo == "saver"), (algo, settings.complete_at_success)
     return before["distance"], after["distance"]
@@ -720,7 +721,7 @@ def test_an_inertial_point_mass_trains_with_saver():
     # measured 0.15), success up by 10 points.
     store = Server("pcpn-trainer", ["pcpn-trainer", "--store", os.path.join(TMP, "store-pm")]).wait_ready()
     try:
-        before, after, settings = custom_run("saver_actor.examples:pointmass", "saver", 150_000,
+        before, after, settings, _ = custom_run("saver_actor.examples:pointmass", "saver", 150_000,
                                       ["--pretrain-batches", "1000"], pcpn=store, max_steps=200)
     finally:
         store.stop()
