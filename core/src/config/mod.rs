@@ -88,6 +88,12 @@ pub struct SaverConfig {
     /// rollout (the paper).
     #[serde(default = "no_trace_decay")]
     pub gae_lambda: f64,
+    /// A trust region for [`Self::epochs`]' passes: before each minibatch step after
+    /// the first, the passes over the batch stop once the minibatch's approximate
+    /// KL(behaviour ‖ current policy), mean((ρ − 1) − log ρ) over its steps' actions, is
+    /// above this (cleanrl's and SB3's `target_kl`; docs/ALGORITHM.md §7.1). 0: off.
+    #[serde(default)]
+    pub target_kl: f64,
 }
 
 fn no_trace_decay() -> f64 {
@@ -258,6 +264,7 @@ impl RunConfig {
                 epochs: 1,
                 minibatch_size: 0,
                 gae_lambda: 1.0,
+                target_kl: 0.0,
             },
             ppo: PpoConfig::default(),
             pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
@@ -375,6 +382,20 @@ impl RunConfig {
             return bad(
                 "saver.gae_lambda",
                 format!("{} is not in [0, 1]", s.gae_lambda),
+            );
+        }
+        if !(s.target_kl.is_finite() && s.target_kl >= 0.0) {
+            return bad(
+                "saver.target_kl",
+                format!("{} must be finite and >= 0 (0: off)", s.target_kl),
+            );
+        }
+        if s.target_kl > 0.0 && s.epochs == 1 && s.minibatch_size == 0 {
+            return bad(
+                "saver.target_kl",
+                "stops the passes of saver.epochs over minibatches of \
+                 saver.minibatch_size; with one step on the whole batch there is nothing to stop"
+                    .into(),
             );
         }
         if !(1..=1000).contains(&s.epochs) {
@@ -553,6 +574,17 @@ mod tests {
         }
         c.saver.gae_lambda = 0.0;
         crate::algo::validate(&c).unwrap();
+        for bad in [-0.1, f64::NAN, f64::INFINITY] {
+            c.saver.target_kl = bad;
+            let e = crate::algo::validate(&c).unwrap_err().to_string();
+            assert!(e.contains("saver.target_kl") && e.contains(">= 0"), "{e}");
+        }
+        c.saver.target_kl = 0.01;
+        let e = crate::algo::validate(&c).unwrap_err().to_string();
+        assert!(e.contains("nothing to stop"), "{e}");
+        c.saver.epochs = 4;
+        crate::algo::validate(&c).unwrap();
+        (c.saver.target_kl, c.saver.epochs) = (0.0, 1);
         c.saver.epochs = 0;
         let e = crate::algo::validate(&c).unwrap_err().to_string();
         assert!(

@@ -3,7 +3,9 @@
 //! batch's critic targets, advantages and Δp targets are made once at its start, as in
 //! the one-step update, then every minibatch is one optimiser step of the same three
 //! losses on its rows, with the agent's and critic's outputs of that moment. The PCPN,
-//! when it learns, takes its one step on the whole batch after the passes.
+//! when it learns, takes its one step on the whole batch after the passes. With
+//! `saver.target_kl` the passes stop early once a minibatch's policy has moved that far
+//! from the one that acted (approximate KL), as PPO's early stop.
 
 use super::{Losses, Saver, StepRows};
 use crate::algo::{Algorithm, UpdateStats};
@@ -29,17 +31,27 @@ impl Saver {
     /// signal's dL/dμ the first pass's (each row once).
     fn epochs(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let (b, m) = (batch.len(), self.cfg.minibatches(batch.len()));
-        let (o, d, mu_dim) = (
+        let (o, d, mu_dim, a) = (
             self.layout.obs_dim,
             self.layout.aligned_dim,
             self.layout.mu_dim(),
+            self.layout.action_dim(),
         );
         let s = self.start(batch)?;
         let tune = self.tune_grads(&s.fwd.x, batch)?;
         let mut dmu = Some(vec![0f32; b * mu_dim]);
         let mut losses = Vec::with_capacity(self.cfg.epochs * m);
         let mut order: Vec<usize> = (0..b).collect();
-        for epoch in 0..self.cfg.epochs {
+        let behaviour = if self.cfg.target_kl > 0.0 {
+            Some(crate::algo::behaviour_log_probs(
+                &self.layout,
+                batch,
+                &self.dev,
+            )?)
+        } else {
+            None
+        };
+        'passes: for epoch in 0..self.cfg.epochs {
             // One minibatch is the whole batch: its order changes nothing but the bits.
             if m > 1 {
                 order.shuffle(&mut self.rng);
@@ -55,6 +67,18 @@ impl Saver {
                 let n = idx.len();
                 let fwd =
                     self.forward(Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?)?;
+                if let Some(logp_b) = &behaviour {
+                    let first = epoch == 0 && j == 0;
+                    if !first
+                        && self.approx_kl(&fwd, &rows(&batch.actions, a), idx, logp_b)?
+                            > self.cfg.target_kl
+                    {
+                        if epoch == 0 {
+                            dmu = None; // the signal's dL/dμ would miss rows
+                        }
+                        break 'passes;
+                    }
+                }
                 let (target, adv) = (rows(&s.target, d), rows(&s.adv_host, d));
                 let step_rows = StepRows {
                     fwd: &fwd,
@@ -79,6 +103,32 @@ impl Saver {
         }
         let tune_loss = self.apply_tune(tune)?;
         self.finish(batch, s, dmu, Losses::mean(&losses), tune_loss)
+    }
+
+    /// KL(behaviour ‖ current) over some steps, approximated as PPO's diagnostics do:
+    /// mean((ρ − 1) − log ρ), ρ = π(a|o)/μ(a|o) of each step's action, with `fwd` the
+    /// current policy's outputs for the rows `idx` (their actions `actions`) and
+    /// `logp_b` the behaviour's log μ(a|o) of every step of the batch.
+    fn approx_kl(
+        &self,
+        fwd: &super::Forward,
+        actions: &[f32],
+        idx: &[usize],
+        logp_b: &[f32],
+    ) -> Result<f64> {
+        let n = idx.len();
+        let actions = Tensor::from_slice(actions, (n, self.layout.action_dim()), &self.dev)?;
+        let logp = crate::nets::gaussian_log_prob(&self.layout, &fwd.mu, &fwd.log_std, &actions)?
+            .to_vec1::<f32>()?;
+        let sum: f64 = idx
+            .iter()
+            .zip(logp)
+            .map(|(&i, lp)| {
+                let log_ratio = (lp - logp_b[i]) as f64;
+                log_ratio.exp_m1() - log_ratio
+            })
+            .sum();
+        Ok(sum / n as f64)
     }
 }
 
@@ -151,6 +201,25 @@ mod tests {
         s.update(&batch).unwrap();
         assert_eq!(s.optimizer_steps(), 30);
         assert_ne!(before, weights(&s));
+    }
+
+    /// The KL stop: the behaviour policy of the batch (μ = 0.1, its own σ) is far from
+    /// the fresh agent's, so a threshold of 1e-9 stops the passes before the second
+    /// minibatch (one optimiser step of 15), while one no minibatch reaches (1e30) takes
+    /// all 15 and the same weights, bit for bit, as no stop: the check draws nothing.
+    #[test]
+    fn the_kl_stop_ends_the_passes_and_costs_nothing_when_never_reached() {
+        let stopped = |kl: f64| {
+            let (mut s, batch) = saver(3, 5, 1e-3);
+            s.cfg.target_kl = kl;
+            s.update(&batch).unwrap();
+            (s.optimizer_steps(), weights(&s))
+        };
+        assert_eq!(stopped(1e-9).0, 1);
+        let (steps, free) = stopped(1e30);
+        assert_eq!(steps, 15);
+        let (_, off) = stopped(0.0);
+        assert_eq!(free, off);
     }
 
     /// At a learning rate of 1e30 the first minibatch's step blows the weights up and
