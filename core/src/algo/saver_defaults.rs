@@ -60,8 +60,8 @@ pub const CUSTOM_SAVER_PCPN_TUNE_LR: f64 = 1e-4;
 /// most of its return in the env's control cost. At 0.97 with the completed progress
 /// (stopping short of the box then costs the whole remainder) Reacher's return is at
 /// least SB3 PPO's and our A2C's on 14 of 15 seeds over three pretrainings (γ = 0.9
-/// without it: 7 of 10), for a little of the point mass's precision (over four
-/// pretrainings 11 of 20 seeds at 1.00 success against 14, mean 0.955 against 0.965;
+/// without it: 7 of 10), for a little of the point mass's precision (over five
+/// pretrainings 14 of 25 seeds at 1.00 success against 17, mean 0.96 against 0.97;
 /// docs/ALGORITHM.md §7.1, results/README.md, "The custom-env default since
 /// 2026-12-04").
 pub const CUSTOM_SAVER_GAMMA: f64 = 0.97;
