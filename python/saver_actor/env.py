@@ -237,24 +237,25 @@ class EnvDecl:
         """(state_delta, vector_reward, success) of one step of every env, [E, d] and
         [E]; checked against max_change unless `check` is false (the actor checks a
         whole rollout at once: check_steps). `complete`: whether to complete the
-        progress at success (None: complete_at_success, None there counting as no)."""
+        progress at success (None: as `completes` says outside a run)."""
         a = self.aligned
         p, q = obs[:, a], next_obs[:, a]
         g = 0.0 if self.goal is None else obs[:, self.goal]
         delta = q - p
+        left = np.abs(q - g)  # |p' - g|: the progress, the success and the completion
         if self.vector_reward is not None:
             r = np.stack([np.asarray(self.vector_reward(o, n, rw, info), dtype=np.float64).reshape(-1)
                           for o, n, rw, info in zip(obs, next_obs, rewards, infos)])
             if r.shape[1] != self.dim:
                 raise EnvError(f"{self.name}: vector_reward gave {r.shape[1]} values for d = {self.dim}")
         else:
-            r = np.abs(p - g) - np.abs(q - g)
+            r = np.abs(p - g) - left
         if self.success_radius is not None:
-            success = np.max(np.abs(q - g), axis=1) < self.success_radius
+            success = np.max(left, axis=1) < self.success_radius
         else:
             success = np.asarray(terminated, dtype=bool)
-        if (self.complete_at_success if complete is None else complete):
-            r = np.where(success[:, None], np.minimum(r + np.abs(q - g), self.max_change), r)
+        if self.completes(False) if complete is None else complete:
+            r = np.where(success[:, None], np.minimum(r + left, self.max_change), r)
         if check:
             self.check_steps(delta, r, "a step")
         return delta, r, success

@@ -722,7 +722,7 @@ def test_an_inertial_point_mass_trains_with_saver():
     store = Server("pcpn-trainer", ["pcpn-trainer", "--store", os.path.join(TMP, "store-pm")]).wait_ready()
     try:
         before, after, settings, _ = custom_run("saver_actor.examples:pointmass", "saver", 150_000,
-                                      ["--pretrain-batches", "1000"], pcpn=store, max_steps=200)
+                                                ["--pretrain-batches", "1000"], pcpn=store, max_steps=200)
     finally:
         store.stop()
     assert settings.complete_at_success, "SAVER's custom-env default completes the progress at success"

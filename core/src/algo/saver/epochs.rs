@@ -70,7 +70,7 @@ impl Saver {
                 if let Some(logp_b) = &behaviour {
                     let first = epoch == 0 && j == 0;
                     if !first
-                        && self.approx_kl(&fwd, &rows(&batch.actions, a), idx, logp_b)?
+                        && self.approx_kl(&fwd, &rows(&batch.actions, a), &rows(logp_b, 1))?
                             > self.cfg.target_kl
                     {
                         if epoch == 0 {
@@ -107,24 +107,18 @@ impl Saver {
 
     /// KL(behaviour ‖ current) over some steps, approximated as PPO's diagnostics do:
     /// mean((ρ − 1) − log ρ), ρ = π(a|o)/μ(a|o) of each step's action, with `fwd` the
-    /// current policy's outputs for the rows `idx` (their actions `actions`) and
-    /// `logp_b` the behaviour's log μ(a|o) of every step of the batch.
-    fn approx_kl(
-        &self,
-        fwd: &super::Forward,
-        actions: &[f32],
-        idx: &[usize],
-        logp_b: &[f32],
-    ) -> Result<f64> {
-        let n = idx.len();
+    /// current policy's outputs for the steps, `actions` theirs and `logp_b` the
+    /// behaviour's log μ(a|o) of each.
+    fn approx_kl(&self, fwd: &super::Forward, actions: &[f32], logp_b: &[f32]) -> Result<f64> {
+        let n = logp_b.len();
         let actions = Tensor::from_slice(actions, (n, self.layout.action_dim()), &self.dev)?;
         let logp = crate::nets::gaussian_log_prob(&self.layout, &fwd.mu, &fwd.log_std, &actions)?
             .to_vec1::<f32>()?;
-        let sum: f64 = idx
+        let sum: f64 = logp
             .iter()
-            .zip(logp)
-            .map(|(&i, lp)| {
-                let log_ratio = (lp - logp_b[i]) as f64;
+            .zip(logp_b)
+            .map(|(lp, lb)| {
+                let log_ratio = (lp - lb) as f64;
                 log_ratio.exp_m1() - log_ratio
             })
             .sum();
