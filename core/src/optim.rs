@@ -277,15 +277,17 @@ impl Optimizer {
             Some(s) => host(s)?,
             None => Vec::new(),
         };
-        let mut finite = true;
+        // Any non-finite value or slot sets a bit; a bitwise or (no early exit) lets the
+        // loops vectorise, sqrt and division included (the same IEEE results per lane).
+        let mut bad = false;
         match self.config {
             OptimizerConfig::Rmsprop { decay, eps, .. } => {
                 let one_minus = 1.0f32 - decay as f32;
                 let (lr, eps) = (lr as f32, eps as f32);
                 for ((w, ms), &g) in value.iter_mut().zip(s1.iter_mut()).zip(&g) {
-                    *ms += (g * g - *ms) * one_minus;
+                    *ms = flush_subnormal(*ms + (g * g - *ms) * one_minus);
                     *w -= (g * lr) / (*ms + eps).sqrt();
-                    finite &= w.is_finite() && ms.is_finite();
+                    bad |= !w.is_finite() | !ms.is_finite();
                 }
             }
             OptimizerConfig::Adam { beta1, beta2, eps } => {
@@ -294,14 +296,14 @@ impl Optimizer {
                 let (b1, b2) = (beta1 as f32, beta2 as f32);
                 let (c1, c2, eps) = ((1.0 - beta1) as f32, (1.0 - beta2) as f32, eps as f32);
                 for (((w, m), v), &g) in value.iter_mut().zip(&mut s1).zip(&mut s2).zip(&g) {
-                    *m = *m * b1 + g * c1;
-                    *v = *v * b2 + g * g * c2;
+                    *m = flush_subnormal(*m * b1 + g * c1);
+                    *v = flush_subnormal(*v * b2 + g * g * c2);
                     *w -= (*m * lr_t) / (v.sqrt() + eps);
-                    finite &= w.is_finite() && m.is_finite() && v.is_finite();
+                    bad |= !w.is_finite() | !m.is_finite() | !v.is_finite();
                 }
             }
         }
-        if !finite {
+        if bad {
             return Err(CoreError::NonFinite(format!(
                 "the step would make the value or a slot of {} non-finite",
                 self.vars[i].0
@@ -364,6 +366,23 @@ impl Optimizer {
             OptimizerConfig::Rmsprop { .. } => ("ms", ""),
             OptimizerConfig::Adam { .. } => ("m", "v"),
         }
+    }
+}
+
+/// `x`, or 0 where it is below f32's smallest normal (1.2e-38). A weight whose gradient
+/// stays 0 (a ReLU unit that no row reaches) decays its slots geometrically into
+/// subnormals, where each multiply or square root takes ~100 cycles instead of a few:
+/// after 65 k steps of PPO on angle d = 2, 11 % of the Adam slots were subnormal and the
+/// optimiser's step took 46 % of the run (perf). The flush cannot move a weight above
+/// ~1e-25 in size: with |m| < 1.2e-38 and ε = 1e-8 Adam's step lr_t·m/(√v + ε) is below
+/// 1e-33, under half an ulp of such a weight, and a subnormal v or ms is below the ulp of
+/// the ε it is added to. The tensor path (off the CPU) keeps its subnormals.
+#[inline(always)]
+fn flush_subnormal(x: f32) -> f32 {
+    if x.abs() < f32::MIN_POSITIVE {
+        0.0
+    } else {
+        x
     }
 }
 

@@ -189,6 +189,7 @@ fn time_update(
     seconds: f64,
     threads: usize,
     tune: bool,
+    path: GradPath,
 ) -> Result<(f64, f64, usize)> {
     let dev = Device::Cpu;
     let spec = EnvSpec::new(EnvKind::Angle, d)?;
@@ -202,6 +203,7 @@ fn time_update(
         .transpose()?;
     let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
     a.set_threads(threads);
+    a.set_grad_path(path);
     // 16 actors x the rollout (PPO on angle: 128, 32 minibatches of 64 a pass).
     let batch = synthetic_batch(&spec.layout(), config.rollout as usize, d as u64);
     let s = time(seconds, || {
@@ -237,11 +239,14 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "of peak"
     );
     let mut single = Vec::new();
+    let mut ppo = Vec::new();
     for algo in [Algo::A2c, Algo::Saver, Algo::Qrrl, Algo::Ppo] {
         for &d in &args.dims {
-            let (s, flops, n) = time_update(algo, d, args.seconds, 1, false)?;
-            if algo == Algo::Saver {
-                single.push(s);
+            let (s, flops, n) = time_update(algo, d, args.seconds, 1, false, GradPath::Fast)?;
+            match algo {
+                Algo::Saver => single.push(s),
+                Algo::Ppo => ppo.push(s),
+                _ => {}
             }
             let gflops = flops / s / 1e9;
             crate::out!(
@@ -255,6 +260,25 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
     }
     crate::out!(
+        "\nPPO's step through candle autograd (the reference of its hand-written path), one core:"
+    );
+    crate::out!(
+        "{:<6} {:>3} {:>12} {:>14}",
+        "algo",
+        "d",
+        "ms/update",
+        "hand-written"
+    );
+    for (&d, fast) in args.dims.iter().zip(&ppo) {
+        let (s, _, _) = time_update(Algo::Ppo, d, args.seconds, 1, false, GradPath::Reference)?;
+        crate::out!(
+            "{:<6} {d:>3} {:>12.2} {:>12.2}x faster",
+            "ppo",
+            s * 1e3,
+            s / fast
+        );
+    }
+    crate::out!(
         "\nSAVER with its PCPN trained on each batch (--pcpn-tune-lr, a custom env's default), one core:"
     );
     crate::out!(
@@ -265,7 +289,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "vs frozen"
     );
     for (&d, frozen) in args.dims.iter().zip(&single) {
-        let (s, _, _) = time_update(Algo::Saver, d, args.seconds, 1, true)?;
+        let (s, _, _) = time_update(Algo::Saver, d, args.seconds, 1, true, GradPath::Fast)?;
         crate::out!(
             "{:<6} {d:>3} {:>12.2} {:>13.2}x",
             "saver",
@@ -287,7 +311,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
             "vs 1 thread"
         );
         for (&d, one) in args.dims.iter().zip(single) {
-            let (s, _, n) = time_update(Algo::Saver, d, args.seconds, threads, false)?;
+            let (s, _, n) =
+                time_update(Algo::Saver, d, args.seconds, threads, false, GradPath::Fast)?;
             crate::out!(
                 "{:<6} {d:>3} {:>12.2} {:>14.0} {:>13.2}x",
                 "saver",

@@ -82,6 +82,10 @@ pub trait Algorithm: Send {
     /// execution option that never changes the results. Ignored by single-threaded
     /// updates.
     fn set_threads(&mut self, _n: usize) {}
+    /// Which gradient implementation the update runs (the hand-written host path by
+    /// default on the CPU); for the tests and `saver bench` that hold the fast paths to
+    /// candle autograd. Ignored by algorithms with one path.
+    fn set_grad_path(&mut self, _path: GradPath) {}
     /// Everything a checkpoint needs to go on exactly: every trainable tensor, the
     /// optimiser slots, and numbers such as the step count and random-stream position.
     fn save_state(&self) -> Result<AlgoState>;

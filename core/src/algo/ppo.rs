@@ -10,7 +10,9 @@
 //! and the one of V_old + clip(V − V_old, ±clip). With `ppo.vector` the critic is
 //! V(o) ∈ R^d on the vector reward, GAE runs per coordinate and Â is the sum over them.
 
-use super::{batch_gae, check_finite, policy_diagnostics, update_rows, Algorithm, UpdateStats};
+use super::{
+    batch_gae, check_finite, policy_diagnostics, update_rows, Algorithm, GradPath, UpdateStats,
+};
 use crate::config::{PpoConfig, RunConfig};
 use crate::env::EnvLayout;
 use crate::nets::{gaussian_log_prob, Agent, Critic};
@@ -19,6 +21,7 @@ use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, SaverRng};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
+use candle_core::backprop::GradStore;
 use candle_core::{Device, Tensor};
 use rand::seq::SliceRandom;
 use saver_proto::NamedTensor;
@@ -57,6 +60,8 @@ pub struct Ppo {
     bootstrap_timeout: bool,
     /// PPO's constants.
     cfg: PpoConfig,
+    /// Which gradient implementation runs.
+    path: GradPath,
     /// Device.
     dev: Device,
 }
@@ -124,14 +129,22 @@ fn build_ppo(
     Ok(Box::new(Ppo::new(config, dev)?))
 }
 
-/// One minibatch's host rows, gathered from the batch.
+/// One minibatch's rows, gathered from the batch (row-major on the host).
 struct Minibatch {
-    obs: Tensor,
-    actions: Tensor,
-    old_logp: Tensor,
-    advantage: Tensor,
-    returns: Tensor,
-    old_value: Tensor,
+    /// Steps.
+    n: usize,
+    /// [n, obs_dim].
+    obs: Vec<f32>,
+    /// [n, action_dim].
+    actions: Vec<f32>,
+    /// [n].
+    old_logp: Vec<f32>,
+    /// [n], normalised with `ppo.adv_norm`.
+    advantage: Vec<f32>,
+    /// [n, c].
+    returns: Vec<f32>,
+    /// [n, c].
+    old_value: Vec<f32>,
 }
 
 /// Sums over the minibatch steps of one update, for its stats.
@@ -174,6 +187,7 @@ impl Ppo {
             value_coef: config.value_coef,
             bootstrap_timeout: config.bootstrap_timeout,
             cfg: config.ppo.clone(),
+            path: GradPath::for_device(dev),
             dev: dev.clone(),
         })
     }
@@ -203,20 +217,46 @@ impl Ppo {
 
     /// One minibatch's optimiser step; its losses are checked before the step.
     fn step(&mut self, mb: &Minibatch, totals: &mut Totals) -> Result<()> {
-        let out = self.agent.forward(&mb.obs)?;
-        let logp = gaussian_log_prob(&self.layout, &out.mu, &out.log_std, &mb.actions)?;
-        let log_ratio = (logp - &mb.old_logp)?;
+        let grads = if self.path == GradPath::Fast && self.layout.choices == 0 {
+            let nets = fast::Nets {
+                agent: self.agent.layers(),
+                log_std: self.agent.log_std_var(),
+                critic: self.critic.layers().iter().collect(),
+                head: self.agent.head(),
+            };
+            fast::step_grads(&nets, mb, &self.cfg, self.value_coef, self.c, totals)?
+        } else {
+            self.reference_grads(mb, totals)?
+        };
+        totals.grad_norm += self.opt.step(&grads)?;
+        totals.steps += 1;
+        Ok(())
+    }
+
+    /// The step's losses and gradients through candle's graph (the reference the fast
+    /// path is tested against; the only path for layouts with a choice and off the CPU).
+    fn reference_grads(&self, mb: &Minibatch, totals: &mut Totals) -> Result<GradStore> {
+        let (n, c, dev) = (mb.n, self.c, &self.dev);
+        let obs = Tensor::from_slice(&mb.obs, (n, self.layout.obs_dim), dev)?;
+        let actions = Tensor::from_slice(&mb.actions, (n, self.layout.action_dim()), dev)?;
+        let old_logp = Tensor::from_slice(&mb.old_logp, n, dev)?;
+        let advantage = Tensor::from_slice(&mb.advantage, n, dev)?;
+        let returns = Tensor::from_slice(&mb.returns, (n, c), dev)?;
+        let out = self.agent.forward(&obs)?;
+        let logp = gaussian_log_prob(&self.layout, &out.mu, &out.log_std, &actions)?;
+        let log_ratio = (logp - &old_logp)?;
         let ratio = log_ratio.exp()?;
         let eps = self.cfg.clip;
-        let unclipped = (&ratio * &mb.advantage)?;
-        let clipped = (ratio.clamp(1.0 - eps, 1.0 + eps)? * &mb.advantage)?;
+        let unclipped = (&ratio * &advantage)?;
+        let clipped = (ratio.clamp(1.0 - eps, 1.0 + eps)? * &advantage)?;
         let policy_loss = unclipped.minimum(&clipped)?.mean_all()?.neg()?;
-        let v = self.critic.forward(&mb.obs)?;
-        let err = (&v - &mb.returns)?.sqr()?;
+        let v = self.critic.forward(&obs)?;
+        let err = (&v - &returns)?.sqr()?;
         let err = match self.cfg.value_clip {
             Some(vc) => {
-                let moved = (&v - &mb.old_value)?.clamp(-vc, vc)?;
-                let clipped_err = ((&mb.old_value + moved)? - &mb.returns)?.sqr()?;
+                let old_value = Tensor::from_slice(&mb.old_value, (n, c), dev)?;
+                let moved = (&v - &old_value)?.clamp(-vc, vc)?;
+                let clipped_err = ((&old_value + moved)? - &returns)?.sqr()?;
                 err.maximum(&clipped_err)?
             }
             None => err,
@@ -229,7 +269,6 @@ impl Ppo {
         let vl = check_finite("value_loss", value_loss.to_scalar::<f32>()?)?;
         check_finite("loss", loss.to_scalar::<f32>()?)?;
         let grads = loss.backward()?;
-        totals.grad_norm += self.opt.step(&grads)?;
         // Diagnostics (cleanrl's): KL(π_old‖π) ≈ mean((ρ − 1) − log ρ), and the share of
         // steps whose ratio the clip bounds.
         let kl = ((&ratio - 1.0)? - &log_ratio)?.mean_all()?;
@@ -242,8 +281,7 @@ impl Ppo {
         totals.entropy += entropy.to_scalar::<f32>()? as f64;
         totals.approx_kl += kl.to_scalar::<f32>()? as f64;
         totals.clip_fraction += outside.mean_all()?.to_scalar::<f32>()? as f64;
-        totals.steps += 1;
-        Ok(())
+        Ok(grads)
     }
 
     /// The mean entropy of the policy over rows: Σ_c (log σ_c + ½·ln(2πe)) for the
@@ -261,7 +299,7 @@ impl Ppo {
     }
 
     /// The minibatch of steps `idx`.
-    fn minibatch(&self, idx: &[usize], batch: &Batch, host: &Host) -> Result<Minibatch> {
+    fn minibatch(&self, idx: &[usize], batch: &Batch, host: &Host) -> Minibatch {
         let (o, a, c) = (self.layout.obs_dim, self.layout.action_dim(), self.c);
         let rows = |data: &[f32], w: usize| -> Vec<f32> {
             idx.iter()
@@ -273,15 +311,15 @@ impl Ppo {
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv, 1, false);
         }
-        let t = |v: Vec<f32>, w: usize| Tensor::from_vec(v, (n, w), &self.dev);
-        Ok(Minibatch {
-            obs: t(rows(&batch.obs, o), o)?,
-            actions: t(rows(&batch.actions, a), a)?,
-            old_logp: Tensor::from_vec(rows(&host.old_logp, 1), n, &self.dev)?,
-            advantage: Tensor::from_vec(adv, n, &self.dev)?,
-            returns: t(rows(&host.returns, c), c)?,
-            old_value: t(rows(&host.values, c), c)?,
-        })
+        Minibatch {
+            n,
+            obs: rows(&batch.obs, o),
+            actions: rows(&batch.actions, a),
+            old_logp: rows(&host.old_logp, 1),
+            advantage: adv,
+            returns: rows(&host.returns, c),
+            old_value: rows(&host.values, c),
+        }
     }
 
     /// The update's body; on an error the caller puts the state back.
@@ -303,7 +341,7 @@ impl Ppo {
             for j in 0..m {
                 // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
                 let idx = &order[j * b / m..(j + 1) * b / m];
-                let mb = self.minibatch(idx, batch, &host)?;
+                let mb = self.minibatch(idx, batch, &host);
                 self.step(&mb, &mut totals)?;
             }
         }
@@ -385,6 +423,10 @@ impl Algorithm for Ppo {
         self.opt.steps()
     }
 
+    fn set_grad_path(&mut self, path: GradPath) {
+        self.path = path;
+    }
+
     fn save_state(&self) -> Result<super::AlgoState> {
         let nets = [self.agent.params(), self.critic.params()];
         super::nets_state(&nets, &self.opt, Some(&self.rng))
@@ -400,5 +442,6 @@ impl Algorithm for Ppo {
     }
 }
 
+mod fast;
 #[cfg(test)]
 mod tests;

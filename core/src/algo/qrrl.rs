@@ -156,11 +156,6 @@ impl Qrrl {
             dev: dev.clone(),
         })
     }
-
-    /// Chooses the gradient implementation.
-    pub fn set_grad_path(&mut self, path: GradPath) {
-        self.path = path;
-    }
 }
 
 /// The two policy-side loss terms through candle autograd: the reference the fused
@@ -185,6 +180,10 @@ pub fn qrrl_actor_losses(
 }
 
 impl Algorithm for Qrrl {
+    fn set_grad_path(&mut self, path: GradPath) {
+        self.path = path;
+    }
+
     fn stat_names(&self) -> Vec<&'static str> {
         STATS.to_vec()
     }

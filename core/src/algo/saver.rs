@@ -183,11 +183,6 @@ impl Saver {
     pub fn pcpn(&self) -> &Pcpn {
         self.pcpn.pcpn()
     }
-
-    /// Chooses the agent-gradient implementation.
-    pub fn set_grad_path(&mut self, path: GradPath) {
-        self.path = path;
-    }
 }
 
 /// Agent and critic over some rows, in the graph.
@@ -519,6 +514,10 @@ impl Saver {
 }
 
 impl Algorithm for Saver {
+    fn set_grad_path(&mut self, path: GradPath) {
+        self.path = path;
+    }
+
     fn stat_names(&self) -> Vec<&'static str> {
         let mut names = if self.tuner.is_some() {
             STATS_TUNED.to_vec()

@@ -103,4 +103,19 @@ impl Agent {
     pub fn params(&self) -> &ParamSet {
         &self.params
     }
+
+    /// The trunk's layers then the μ layer (not the value head), input to output.
+    pub fn layers(&self) -> Vec<&Linear> {
+        self.trunk.iter().chain([&self.mu]).collect()
+    }
+
+    /// The log σ variable, before the head's clamp.
+    pub fn log_std_var(&self) -> &Tensor {
+        &self.log_std
+    }
+
+    /// The head's bounds.
+    pub fn head(&self) -> HeadConfig {
+        self.head
+    }
 }

@@ -44,6 +44,11 @@ impl Critic {
         mlp_forward(&self.layers, x, false)
     }
 
+    /// The layers, input to output (ReLU on all but the last).
+    pub fn layers(&self) -> &[Linear] {
+        &self.layers
+    }
+
     /// The trainable variables.
     pub fn params(&self) -> &ParamSet {
         &self.params

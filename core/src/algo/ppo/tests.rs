@@ -2,6 +2,7 @@ use super::*;
 use crate::algo::tests::random_batch;
 use crate::config::Algo;
 use crate::env::{EnvKind, EnvSpec};
+use rand::Rng;
 
 /// PPO on angle d = 2 with `epochs` passes of minibatches of `size` and clip ε.
 fn config(epochs: usize, size: usize, clip: f64) -> RunConfig {
@@ -175,4 +176,124 @@ fn the_vector_critic_learns_each_coordinate_apart() {
     eprintln!("mean value moved: coordinate 0 {d0}, coordinate 1 {d1}");
     // Returns of a reward of 1 per step over ≤ 16 steps at γ = 0.99 plus bootstrap: ≥ 1.
     assert!(d1 > 0.5 && d0.abs() < 0.25 * d1, "{d0} {d1}");
+}
+
+/// Every variable's gradient of one minibatch step by `path`, with the step's totals.
+fn step_grads(ppo: &Ppo, mb: &Minibatch, path: GradPath) -> (Vec<(String, Vec<f32>)>, Totals) {
+    let mut totals = Totals::default();
+    let grads = match path {
+        GradPath::Fast => {
+            let nets = fast::Nets {
+                agent: ppo.agent.layers(),
+                log_std: ppo.agent.log_std_var(),
+                critic: ppo.critic.layers().iter().collect(),
+                head: ppo.agent.head(),
+            };
+            fast::step_grads(&nets, mb, &ppo.cfg, ppo.value_coef, ppo.c, &mut totals).unwrap()
+        }
+        GradPath::Reference => ppo.reference_grads(mb, &mut totals).unwrap(),
+    };
+    let mut vars = ppo.agent.params().vars.clone();
+    vars.extend(ppo.critic.params().vars.clone());
+    let g = vars
+        .iter()
+        .map(|(name, v)| {
+            let g = grads
+                .get(v.as_tensor())
+                .unwrap_or_else(|| panic!("no gradient for {name}"));
+            (name.clone(), g.flatten_all().unwrap().to_vec1().unwrap())
+        })
+        .collect();
+    (g, totals)
+}
+
+/// The hand-written step (fast.rs) gives candle autograd's gradients on every variable
+/// and the same losses, to f32 rounding, in each branch: ratios spread over [0.5, 2]
+/// around a clip of 0.2 (the share of clipped steps is checked to be between 10 % and
+/// 90 %, so both sides of min() and of the clamp are taken), advantages of both signs,
+/// value clipping on a vector critic (old values moved off the returns so that both
+/// sides of max() are taken), the entropy bonus, and the unbounded head.
+#[test]
+fn the_fast_step_gives_candle_autograds_gradients() {
+    for (value_clip, vector, bounded) in [
+        (None, false, true),
+        (Some(0.1), true, true),
+        (Some(0.1), false, false),
+    ] {
+        let mut cfg = config(1, 64, 0.2);
+        cfg.ppo.value_clip = value_clip;
+        cfg.ppo.vector = vector;
+        cfg.ppo.entropy_coef = 0.01;
+        if !bounded {
+            cfg.head = crate::config::HeadConfig::FAITHFUL;
+        }
+        let ppo = Ppo::new(&cfg, &Device::Cpu).unwrap();
+        let batch = on_policy_batch(&ppo, 9);
+        let (advantage, returns, values) = ppo.advantages(&batch).unwrap();
+        let mut rng = rng_for(9, 78);
+        let old_logp: Vec<f32> =
+            crate::algo::behaviour_log_probs(&ppo.layout, &batch, &Device::Cpu)
+                .unwrap()
+                .iter()
+                .map(|l| l + 0.7 * (2.0 * rng.random::<f32>() - 1.0))
+                .collect();
+        let values = values
+            .iter()
+            .map(|v| v + 0.3 * (2.0 * rng.random::<f32>() - 1.0))
+            .collect();
+        let host = Host {
+            old_logp,
+            advantage,
+            returns,
+            values,
+            explained_variance: 0.0,
+        };
+        let idx: Vec<usize> = (0..64).collect();
+        let mb = ppo.minibatch(&idx, &batch, &host);
+        let (want, t_ref) = step_grads(&ppo, &mb, GradPath::Reference);
+        let (got, t_fast) = step_grads(&ppo, &mb, GradPath::Fast);
+        assert!(
+            t_ref.clip_fraction > 0.1 && t_ref.clip_fraction < 0.9,
+            "{}",
+            t_ref.clip_fraction
+        );
+        for (a, b) in [
+            (t_ref.policy_loss, t_fast.policy_loss),
+            (t_ref.value_loss, t_fast.value_loss),
+            (t_ref.entropy, t_fast.entropy),
+            (t_ref.approx_kl, t_fast.approx_kl),
+            (t_ref.clip_fraction, t_fast.clip_fraction),
+        ] {
+            assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "{a} {b}");
+        }
+        for ((name, w), (_, g)) in want.iter().zip(&got) {
+            let scale = w.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+            assert!(scale > 0.0, "{name}: no gradient");
+            let err = w
+                .iter()
+                .zip(g)
+                .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+            assert!(
+                err <= 1e-4 * scale,
+                "{name} ({value_clip:?}, {vector}, {bounded}): {err} of {scale}"
+            );
+        }
+    }
+}
+
+/// The fast path serves layouts without a choice; select's categorical choice takes the
+/// reference (its update runs and moves the weights).
+#[test]
+fn a_layout_with_a_choice_takes_the_reference_step() {
+    let spec = EnvSpec::new(EnvKind::Select, 4).unwrap();
+    let mut cfg = crate::algo::recommended(&spec, Algo::Ppo, 1);
+    cfg.ppo.epochs = 1;
+    cfg.ppo.minibatch_size = 32;
+    let mut ppo = Ppo::new(&cfg, &Device::Cpu).unwrap();
+    assert!(ppo.layout.choices > 0);
+    let l = ppo.layout;
+    let batch = random_batch(&l, 4, 16, 3, 1.0, vec![false; 64]);
+    let before = values(ppo.save_state().unwrap().tensors);
+    ppo.update(&batch).unwrap();
+    assert_ne!(before, values(ppo.save_state().unwrap().tensors));
 }
