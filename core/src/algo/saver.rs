@@ -10,7 +10,9 @@ mod targets;
 
 use super::pcpn_tune::PcpnTuner;
 use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
-use super::saver_signal::{predicted_delta, rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY};
+use super::saver_signal::{
+    noise_rank_delta, predicted_delta, rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY,
+};
 use super::{check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats};
 use crate::config::{DeltaTarget, RunConfig, SaverConfig, MU_RAW_LIMIT};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
@@ -324,6 +326,15 @@ impl Saver {
             DeltaTarget::Predicted => {
                 let signal = SignalBatch::of(batch, &mu_host, &log_std_host, &adv_host, None);
                 Cow::Owned(predicted_delta(
+                    self.pcpn.pcpn(),
+                    &self.layout,
+                    &signal,
+                    &self.dev,
+                )?)
+            }
+            DeltaTarget::Noise => {
+                let signal = SignalBatch::of(batch, &mu_host, &log_std_host, &adv_host, None);
+                Cow::Owned(noise_rank_delta(
                     self.pcpn.pcpn(),
                     &self.layout,
                     &signal,

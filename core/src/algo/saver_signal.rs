@@ -69,6 +69,99 @@ pub fn predicted_delta(
     pcpn_quantiles(pcpn, &s.inputs(layout, &rows, true, dev)?, &[0.5])
 }
 
+/// The noise-rank target [B, d] (`saver.target = "noise"`): `Q_j(x_b, τ*_bj)`, the
+/// PCPN's quantile at the rank the step's own action noise takes along coordinate j,
+/// `τ*_bj = Φ(z_bj)` with `z_bj = Σ_i s_bji σ_i ε_bi / √(Σ_i s_bji² σ_i²)` ([`noise_ranks`]).
+/// Under a PCPN whose quantiles rise with τ, the target's rank among them is τ*: the
+/// rank of the noise, never the PCPN's error about the state's drift, and the update
+/// is the score-function step the module docs describe, routed by the PCPN's slopes.
+pub fn noise_rank_delta(
+    pcpn: &Pcpn,
+    layout: &EnvLayout,
+    s: &SignalBatch,
+    dev: &Device,
+) -> Result<Vec<f32>> {
+    let (b, d) = (s.rows(layout), layout.aligned_dim);
+    let rows: Vec<usize> = (0..b).collect();
+    let x = s.inputs(layout, &rows, false, dev)?;
+    let ranks = noise_ranks(pcpn, layout, s, &x)?; // [B, d]
+    let taus: Vec<f32> = (0..d * b).map(|i| ranks[(i % b) * d + i / b]).collect(); // [d, B]
+    let (_, cos) = tau_tensors(&taus, d, b, 1, dev)?;
+    let q = pcpn.forward(&x.to_dtype(pcpn.dtype())?, &cos.to_dtype(pcpn.dtype())?)?; // [d, B, 1]
+    let q = q.squeeze(2)?.t()?.contiguous()?; // [B, d]
+    Ok(q.to_dtype(DType::F32)?.flatten_all()?.to_vec1()?)
+}
+
+/// Step of μ in the central differences of the PCPN's slope ∂Q_j/∂μ_i at τ = ½.
+pub const SLOPE_STEP: f32 = 0.05;
+
+/// τ*_bj [B, d] of [`noise_rank_delta`]: the action noise ε_bi = (a_bi − μ_bi)/σ_bi of
+/// each continuous entry, projected on coordinate j's slopes s_bji = ∂Q_j(x_b, ½)/∂μ_i
+/// (central differences of ±[`SLOPE_STEP`], 2·c forward passes at τ = ½) scaled by σ,
+/// normalised to N(0, 1) and mapped through Φ, within [0.001, 0.999]. ½ where no entry
+/// moves coordinate j. `x` holds the rows' PCPN inputs [o, μ, log σ].
+pub fn noise_ranks(
+    pcpn: &Pcpn,
+    layout: &EnvLayout,
+    s: &SignalBatch,
+    x: &Tensor,
+) -> Result<Vec<f32>> {
+    let (b, d, c) = (s.rows(layout), layout.aligned_dim, layout.continuous);
+    let (o, m, l) = (layout.obs_dim, layout.mu_dim(), layout.log_std_dim());
+    let host: Vec<f32> = x.flatten_all()?.to_vec1()?;
+    let width = o + m + l;
+    let mut slope = vec![0.0f32; b * d * c]; // [B, d, c]
+    for i in 0..c {
+        let shifted = |by: f32| -> Result<Vec<f32>> {
+            let mut v = host.clone();
+            v.iter_mut()
+                .skip(o + i)
+                .step_by(width)
+                .for_each(|mu| *mu += by);
+            pcpn_quantiles(pcpn, &Tensor::from_vec(v, (b, width), x.device())?, &[0.5])
+        };
+        let (up, down) = (shifted(SLOPE_STEP)?, shifted(-SLOPE_STEP)?);
+        for (k, (u, w)) in up.iter().zip(&down).enumerate() {
+            slope[k * c + i] = (u - w) / (2.0 * SLOPE_STEP);
+        }
+    }
+    let a = layout.action_dim();
+    let mut ranks = vec![0.5f32; b * d];
+    for r in 0..b {
+        for j in 0..d {
+            let (mut num, mut den) = (0.0f64, 0.0f64);
+            for i in 0..c {
+                let sigma = (s.log_std[r * l + i] as f64).exp();
+                let eps = (s.actions[r * a + i] - s.mu[r * m + i]) as f64 / sigma;
+                let w = slope[(r * d + j) * c + i] as f64 * sigma;
+                num += w * eps;
+                den += w * w;
+            }
+            if den > 0.0 {
+                ranks[r * d + j] = normal_cdf(num / den.sqrt()).clamp(1e-3, 1.0 - 1e-3) as f32;
+            }
+        }
+    }
+    Ok(ranks)
+}
+
+/// Φ(z), the standard normal CDF, as ½·erfc(−z/√2) with Abramowitz & Stegun's 7.1.26
+/// for erf (absolute error below 1.5e-7).
+pub fn normal_cdf(z: f64) -> f64 {
+    let x = z.abs() / std::f64::consts::SQRT_2;
+    let t = 1.0 / (1.0 + 0.327_591_1 * x);
+    let poly = t
+        * (0.254_829_592
+            + t * (-0.284_496_736
+                + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+    let erf = 1.0 - poly * (-x * x).exp();
+    if z >= 0.0 {
+        0.5 * (1.0 + erf)
+    } else {
+        0.5 * (1.0 - erf)
+    }
+}
+
 /// Population mean and variance.
 fn moments(v: &[f64]) -> (f64, f64) {
     let n = v.len().max(1) as f64;
@@ -145,7 +238,7 @@ impl<'a> SignalBatch<'a> {
 
     /// The PCPN inputs [o, mean, log σ] of `rows`, with the policy's mean or, with
     /// `taken`, the action taken clipped to [−1, 1] (as the envs clip it) in its place.
-    fn inputs(
+    pub(crate) fn inputs(
         &self,
         layout: &EnvLayout,
         rows: &[usize],

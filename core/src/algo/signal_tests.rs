@@ -2,7 +2,7 @@
 //! target makes SAVER's update blind to an error in the observed change, the observed
 //! one does not, and the statistics tell the two cases apart.
 
-use super::saver_signal::{predicted_delta, rank_stats, SignalBatch};
+use super::saver_signal::{noise_ranks, normal_cdf, predicted_delta, rank_stats, SignalBatch};
 use super::tests::{random_batch, random_pcpn, uniform};
 use super::*;
 use crate::config::{Algo, DeltaTarget, RunConfig};
@@ -55,6 +55,75 @@ fn the_predicted_target_does_not_see_an_error_in_the_observed_change() {
         agent_after_one_update(&config, &clean),
         agent_after_one_update(&config, &shifted)
     );
+    // The noise-rank target depends on the actions' noise and the PCPN alone too, and
+    // its update differs from the predicted target's.
+    let predicted = agent_after_one_update(&config, &clean);
+    config.saver.target = DeltaTarget::Noise;
+    let noise = agent_after_one_update(&config, &clean);
+    assert_eq!(noise, agent_after_one_update(&config, &shifted));
+    assert_ne!(noise, predicted);
+}
+
+/// Φ at a few points (tables: Φ(1) = 0.841345, Φ(−1.96) = 0.024998, Φ(3) = 0.998650).
+#[test]
+fn normal_cdf_matches_the_tables() {
+    for (z, want) in [
+        (0.0, 0.5),
+        (1.0, 0.841_345),
+        (-1.96, 0.024_998),
+        (3.0, 0.998_650),
+    ] {
+        assert!(
+            (normal_cdf(z) - want).abs() < 2e-6,
+            "{z}: {}",
+            normal_cdf(z)
+        );
+    }
+}
+
+/// The noise ranks follow the noise: mirroring every action about its mean (a → 2μ − a)
+/// mirrors each rank (τ* → 1 − τ*), an action at its mean has rank ½, and a step whose
+/// noise moves coordinate j up under the PCPN (its slopes' direction) ranks above ½.
+#[test]
+fn noise_ranks_follow_the_action_noise() {
+    let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
+    let l = spec.layout();
+    let pcpn = random_pcpn(&l, DType::F32);
+    let b = batch(&spec);
+    let rows = b.len();
+    let mut rng = rng_for(9, 2);
+    let mu = uniform(&mut rng, rows * l.mu_dim(), -0.8, 0.8);
+    let log_std = vec![-1.0f32; rows * l.log_std_dim()];
+    let advantage = vec![0.0f32; rows * l.aligned_dim];
+    let mirrored: Vec<f32> = b
+        .actions
+        .iter()
+        .zip(&mu)
+        .map(|(a, m)| 2.0 * m - a)
+        .collect();
+    let ranks = |actions: &[f32]| {
+        let s = SignalBatch {
+            obs: &b.obs,
+            mu: &mu,
+            log_std: &log_std,
+            actions,
+            state_delta: &b.state_delta,
+            advantage: &advantage,
+            dmu: None,
+        };
+        let x = s
+            .inputs(&l, &(0..rows).collect::<Vec<_>>(), false, &Device::Cpu)
+            .unwrap();
+        noise_ranks(&pcpn, &l, &s, &x).unwrap()
+    };
+    let (r, m) = (ranks(&b.actions), ranks(&mirrored));
+    let mut spread = 0.0f32;
+    for (x, y) in r.iter().zip(&m) {
+        assert!((x + y - 1.0).abs() < 1e-5, "{x} {y}");
+        spread = spread.max((x - 0.5).abs());
+    }
+    assert!(spread > 0.3, "the ranks hardly move: {spread}");
+    assert!(ranks(&mu).iter().all(|&x| (x - 0.5).abs() < 1e-6));
 }
 
 /// With the observed change equal to the prediction, the observed and predicted ranks
@@ -125,7 +194,9 @@ fn signal_stats_tell_an_exact_pcpn_from_one_whose_error_swamps_the_action() {
 fn the_predicted_target_is_refused_for_an_env_with_a_choice() {
     let spec = EnvSpec::new(EnvKind::Select, 2).unwrap();
     let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
-    config.saver.target = DeltaTarget::Predicted;
-    let err = crate::algo::validate(&config).unwrap_err().to_string();
-    assert!(err.contains("saver.target"), "{err}");
+    for target in [DeltaTarget::Predicted, DeltaTarget::Noise] {
+        config.saver.target = target;
+        let err = crate::algo::validate(&config).unwrap_err().to_string();
+        assert!(err.contains("saver.target"), "{err}");
+    }
 }

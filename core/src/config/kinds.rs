@@ -105,6 +105,9 @@ pub enum DeltaTarget {
     /// The PCPN's median change for the action taken, at the policy's σ
     /// (docs/ALGORITHM.md §7.1, `algo::saver_signal`).
     Predicted,
+    /// The PCPN's quantile at the rank of the step's own action noise along each
+    /// coordinate's slope (`algo::saver_signal::noise_rank_delta`).
+    Noise,
 }
 
 /// Where PCPN pretraining samples come from.

@@ -410,11 +410,11 @@ impl RunConfig {
                 ),
             );
         }
-        if s.target == DeltaTarget::Predicted && self.env.layout().choices > 0 {
+        if s.target != DeltaTarget::Observed && self.env.layout().choices > 0 {
             return bad(
                 "saver.target",
-                "predicted needs an env without a categorical choice (its action noise has \
-                 no rank along the position change); use observed"
+                "predicted and noise need an env without a categorical choice (its action \
+                 noise has no rank along the position change); use observed"
                     .into(),
             );
         }

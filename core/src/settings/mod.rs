@@ -137,7 +137,7 @@ pub struct SaverSettings {
     pub mu_raw_penalty: Option<f64>,
     #[arg(long, value_delimiter = ',', value_name = "ENTRIES", help = help("SAVER: the mean entries (0-based, comma-separated) --mu-raw-penalty applies to, none given: all; on angle 1,3,5,... are the angles", "saver.mu_raw_penalty_entries"))]
     pub mu_raw_penalty_entries: Option<Vec<usize>>,
-    #[arg(long = "saver-target", value_enum, help = help("SAVER: the actor loss's target: the observed position change (the paper) or the PCPN's prediction for the action taken (for envs where one step's change is mostly velocity)", "saver.target"))]
+    #[arg(long = "saver-target", value_enum, help = help("SAVER: the actor loss's target: the observed position change (the paper), the PCPN's prediction for the action taken, or the PCPN's quantile at the rank of the action's own noise (noise; both for envs where one step's change is mostly velocity)", "saver.target"))]
     #[serde(rename = "target")]
     pub saver_target: Option<DeltaTarget>,
     #[arg(long, allow_hyphen_values = true, help = help("SAVER: learning rate of the PCPN's own training on the policy's steps during the run (one step per update; 0: frozen, the paper)", "saver.pcpn_tune_lr"))]
