@@ -214,6 +214,25 @@ fn time_update(
     Ok((s, flops, batch.len()))
 }
 
+/// A table of an update's time at each d and its ratio to `base` (the same d's time in
+/// the table above), headed `title`; `(algo, what)` name the row and the ratio's column.
+fn ratio_table(
+    title: &str,
+    (algo, what): (&str, &str),
+    dims: &[usize],
+    base: &[f64],
+    time: impl Fn(usize) -> Result<f64>,
+) -> Result<()> {
+    crate::out!("{title}");
+    let head = format!("{what} / above");
+    crate::out!("{:<6} {:>3} {:>12} {head:>16}", "algo", "d", "ms/update");
+    for (&d, b) in dims.iter().zip(base) {
+        let s = time(d)?;
+        crate::out!("{algo:<6} {d:>3} {:>12.2} {:>15.2}x", s * 1e3, s / b);
+    }
+    Ok(())
+}
+
 /// Runs `saver bench`.
 pub fn run(args: BenchArgs) -> Result<()> {
     if args.services_only {
@@ -259,44 +278,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
             );
         }
     }
-    crate::out!(
-        "\nPPO's step through candle autograd (the reference of its hand-written path), one core:"
-    );
-    crate::out!(
-        "{:<6} {:>3} {:>12} {:>14}",
-        "algo",
-        "d",
-        "ms/update",
-        "hand-written"
-    );
-    for (&d, fast) in args.dims.iter().zip(&ppo) {
-        let (s, _, _) = time_update(Algo::Ppo, d, args.seconds, 1, false, GradPath::Reference)?;
-        crate::out!(
-            "{:<6} {d:>3} {:>12.2} {:>12.2}x faster",
-            "ppo",
-            s * 1e3,
-            s / fast
-        );
-    }
-    crate::out!(
-        "\nSAVER with its PCPN trained on each batch (--pcpn-tune-lr, a custom env's default), one core:"
-    );
-    crate::out!(
-        "{:<6} {:>3} {:>12} {:>14}",
-        "algo",
-        "d",
-        "ms/update",
-        "vs frozen"
-    );
-    for (&d, frozen) in args.dims.iter().zip(&single) {
-        let (s, _, _) = time_update(Algo::Saver, d, args.seconds, 1, true, GradPath::Fast)?;
-        crate::out!(
-            "{:<6} {d:>3} {:>12.2} {:>13.2}x",
-            "saver",
-            s * 1e3,
-            s / frozen
-        );
-    }
+    ratio_table(
+        "\nPPO's step through candle autograd (the reference of its hand-written path), one core:",
+        ("ppo", "autograd"),
+        &args.dims,
+        &ppo,
+        |d| Ok(time_update(Algo::Ppo, d, args.seconds, 1, false, GradPath::Reference)?.0),
+    )?;
+    ratio_table(
+        "\nSAVER with its PCPN trained on each batch (--pcpn-tune-lr, a custom env's default), one core:",
+        ("saver", "tuned"),
+        &args.dims,
+        &single,
+        |d| Ok(time_update(Algo::Saver, d, args.seconds, 1, true, GradPath::Fast)?.0),
+    )?;
     let threads = threads_for(args.threads.unwrap_or(crate::pcpn_threads()));
     if threads > 1 {
         crate::out!(

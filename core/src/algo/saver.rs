@@ -323,23 +323,13 @@ impl Saver {
         );
         let target = match self.cfg.target {
             DeltaTarget::Observed => Cow::Borrowed(batch.state_delta.as_slice()),
-            DeltaTarget::Predicted => {
+            target => {
                 let signal = SignalBatch::of(batch, &mu_host, &log_std_host, &adv_host, None);
-                Cow::Owned(predicted_delta(
-                    self.pcpn.pcpn(),
-                    &self.layout,
-                    &signal,
-                    &self.dev,
-                )?)
-            }
-            DeltaTarget::Noise => {
-                let signal = SignalBatch::of(batch, &mu_host, &log_std_host, &adv_host, None);
-                Cow::Owned(noise_rank_delta(
-                    self.pcpn.pcpn(),
-                    &self.layout,
-                    &signal,
-                    &self.dev,
-                )?)
+                let make = match target {
+                    DeltaTarget::Predicted => predicted_delta,
+                    _ => noise_rank_delta,
+                };
+                Cow::Owned(make(self.pcpn.pcpn(), &self.layout, &signal, &self.dev)?)
             }
         };
         Ok(Start {
