@@ -218,19 +218,30 @@ impl Ppo {
     /// One minibatch's optimiser step; its losses are checked before the step.
     fn step(&mut self, mb: &Minibatch, totals: &mut Totals) -> Result<()> {
         let grads = if self.path == GradPath::Fast && self.layout.choices == 0 {
-            let nets = fast::Nets {
-                agent: self.agent.layers(),
-                log_std: self.agent.log_std_var(),
-                critic: self.critic.layers().iter().collect(),
-                head: self.agent.head(),
-            };
-            fast::step_grads(&nets, mb, &self.cfg, self.value_coef, self.c, totals)?
+            fast::step_grads(
+                &self.fast_nets(),
+                mb,
+                &self.cfg,
+                self.value_coef,
+                self.c,
+                totals,
+            )?
         } else {
             self.reference_grads(mb, totals)?
         };
         totals.grad_norm += self.opt.step(&grads)?;
         totals.steps += 1;
         Ok(())
+    }
+
+    /// The networks as the hand-written step takes them.
+    fn fast_nets(&self) -> fast::Nets<'_> {
+        fast::Nets {
+            agent: self.agent.layers(),
+            log_std: self.agent.log_std_var(),
+            critic: self.critic.layers().iter().collect(),
+            head: self.agent.head(),
+        }
     }
 
     /// The step's losses and gradients through candle's graph (the reference the fast

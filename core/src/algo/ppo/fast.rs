@@ -1,9 +1,9 @@
 //! PPO's minibatch step by hand on the host (the default on the CPU for layouts without
 //! a categorical choice): the agent's and critic's MLPs forward and backward with gemm
 //! into plain buffers, the clipped surrogate, value loss and entropy bonus written out.
-//! candle's graph of the same step ([`super::Ppo::step`], `GradPath::Reference`) makes
-//! some 60 small tensor ops a minibatch, each with its allocation and element-wise pass;
-//! here the element-wise work is one loop per layer. Its gradients equal the reference's
+//! candle's graph of the same step (`Ppo::reference_grads`, `GradPath::Reference`) runs
+//! ~60 small tensor ops forward and as many backward a minibatch, each with its
+//! allocation and element-wise pass; here the element-wise work is one loop per layer. Its gradients equal the reference's
 //! to rounding (tested), ties of min/max/clamp split as candle splits them.
 
 use super::{Minibatch, Totals};

@@ -183,12 +183,7 @@ fn step_grads(ppo: &Ppo, mb: &Minibatch, path: GradPath) -> (Vec<(String, Vec<f3
     let mut totals = Totals::default();
     let grads = match path {
         GradPath::Fast => {
-            let nets = fast::Nets {
-                agent: ppo.agent.layers(),
-                log_std: ppo.agent.log_std_var(),
-                critic: ppo.critic.layers().iter().collect(),
-                head: ppo.agent.head(),
-            };
+            let nets = ppo.fast_nets();
             fast::step_grads(&nets, mb, &ppo.cfg, ppo.value_coef, ppo.c, &mut totals).unwrap()
         }
         GradPath::Reference => ppo.reference_grads(mb, &mut totals).unwrap(),
