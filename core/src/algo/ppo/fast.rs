@@ -120,7 +120,8 @@ pub(super) struct Nets<'a> {
 
 /// One minibatch step's losses and the gradients of every variable of `nets`, into
 /// `totals` (the stats) and a [`GradStore`] the optimiser takes. `c` is the critic's
-/// outputs, `continuous` the action entries (no choice).
+/// outputs; every action entry is continuous (the caller takes the reference path for a
+/// layout with a choice).
 pub(super) fn step_grads(
     nets: &Nets,
     mb: &Minibatch,
