@@ -86,7 +86,8 @@ pub struct Optimizer {
     /// Decay the learning rate linearly to zero over this many steps, if set.
     decay_over: Option<u64>,
     /// Step on the host in one pass per variable (every variable on the CPU) instead of
-    /// a dozen tensor ops; the same f32 arithmetic, so the same bits.
+    /// a dozen tensor ops; the same f32 arithmetic, so the same bits, but for slots
+    /// flushed below f32's smallest normal ([`flush_subnormal`]).
     host: bool,
 }
 
@@ -254,7 +255,8 @@ impl Optimizer {
 
     /// Variable `i`'s new value and slots from its gradient `g`, in one pass on the host:
     /// the arithmetic of the tensor path (each constant rounded to f32 as candle's
-    /// affine does), so both give the same bits. Non-finite results are
+    /// affine does), so both give the same bits, but that a new slot value below f32's
+    /// smallest normal is stored as 0 ([`flush_subnormal`]). Non-finite results are
     /// [`CoreError::NonFinite`].
     fn host_step(
         &self,
@@ -473,7 +475,7 @@ mod tests {
 
     /// The one-pass host step and the tensor ops give the same bits: a 3x5 weight and
     /// a bias through 6 steps of a loss with varied gradients, clipped on some steps,
-    /// for both optimisers.
+    /// for both optimisers (no slot gets near a subnormal in 6 steps).
     #[test]
     fn the_host_step_equals_the_tensor_step_to_the_bit() {
         for config in [OptimizerConfig::RMSPROP_TF1, OptimizerConfig::ADAM_TF1] {
