@@ -514,4 +514,42 @@ mod tests {
             assert_eq!(run(true), run(false), "{config:?}");
         }
     }
+
+    /// A weight whose gradient falls to 0 (a ReLU unit no row reaches any more): after
+    /// 1,000 steps its slots would be subnormal (Adam's m decays by 0.9 a step: 1e-3 ·
+    /// 0.9^999 ≈ 3e-49, ms by 0.9 likewise), and the host step holds them at 0 instead,
+    /// while the weights stay the tensor path's (which keeps the subnormals) to the bit.
+    #[test]
+    fn slots_that_decay_below_the_smallest_normal_are_flushed_without_moving_a_weight() {
+        for config in [OptimizerConfig::RMSPROP_TF1, OptimizerConfig::ADAM_TF1] {
+            let run = |host: bool| -> (Vec<f32>, Vec<f32>) {
+                let w = Var::from_slice(&[0.3f32, -0.7], 2, &Device::Cpu).unwrap();
+                let mut opt = Optimizer::new(vec![("w".into(), w.clone())], config, 0.01).unwrap();
+                opt.host = host;
+                for k in 0..1000 {
+                    // A gradient of 1e-3 on the first 10 steps, then none.
+                    let g = if k < 10 { 1e-3f32 } else { 0.0 };
+                    let g = Tensor::from_slice(&[g, g], 2, &Device::Cpu).unwrap();
+                    let loss = (w.as_tensor() * g).unwrap().sum_all().unwrap();
+                    opt.step(&loss.backward().unwrap()).unwrap();
+                }
+                let slots: Vec<f32> = opt
+                    .slots()
+                    .iter()
+                    .flat_map(|(_, t)| t.flatten_all().unwrap().to_vec1::<f32>().unwrap())
+                    .collect();
+                (w.as_tensor().to_vec1().unwrap(), slots)
+            };
+            let ((w_host, s_host), (w_tensor, s_tensor)) = (run(true), run(false));
+            assert_eq!(w_host, w_tensor, "{config:?}");
+            assert!(
+                s_tensor.iter().any(|x| x.is_subnormal()),
+                "{config:?}: {s_tensor:?}"
+            );
+            assert!(
+                s_host.iter().all(|x| *x == 0.0 || x.is_normal()),
+                "{config:?}: {s_host:?}"
+            );
+        }
+    }
 }
