@@ -3,8 +3,9 @@
 //! into plain buffers, the clipped surrogate, value loss and entropy bonus written out.
 //! candle's graph of the same step (`Ppo::reference_grads`, `GradPath::Reference`) runs
 //! ~60 small tensor ops forward and as many backward a minibatch, each with its
-//! allocation and element-wise pass; here the element-wise work is one loop per layer. Its gradients equal the reference's
-//! to rounding (tested), ties of min/max/clamp split as candle splits them.
+//! allocation and element-wise pass; here the element-wise work is one loop per layer.
+//! Its gradients equal the reference's to rounding (tested), ties of min/max/clamp split
+//! as candle splits them.
 
 use super::{Minibatch, Totals};
 use crate::algo::check_finite;
@@ -159,16 +160,22 @@ pub(super) fn step_grads(
     let mut d_log_std = vec![0.0f64; na];
     let (mut policy_loss, mut kl, mut outside) = (0.0f64, 0.0f64, 0usize);
     let mut zs = vec![0.0f32; na];
+    // σ per entry, and a row's tanh(μ_raw) for its backward: each computed once.
+    let sigma: Vec<f32> = log_std.iter().map(|l| l.exp()).collect();
+    let mut tanh = vec![0.0f32; na];
     for b in 0..n {
         let raw = &mu_raw[b * na..(b + 1) * na];
         let act = &mb.actions[b * na..(b + 1) * na];
         let mut logp = 0.0f32;
         for i in 0..na {
             let mu = match nets.head.mu_bound {
-                Some(bd) => raw[i].tanh() * bd as f32,
+                Some(bd) => {
+                    tanh[i] = raw[i].tanh();
+                    tanh[i] * bd as f32
+                }
                 None => raw[i],
             };
-            zs[i] = (act[i] - mu) / log_std[i].exp();
+            zs[i] = (act[i] - mu) / sigma[i];
             logp += -0.5 * zs[i] * zs[i] - log_std[i] - half_log_2pi;
         }
         let log_ratio = logp - mb.old_logp[b];
@@ -188,14 +195,10 @@ pub(super) fn step_grads(
             adv * (share(unclipped < clipped, tie) + share(clipped < unclipped, tie) * clip_pass);
         let dlogp = -inv_n * dmin_dr * r;
         for i in 0..na {
-            let sigma = log_std[i].exp();
             // ∂logp/∂μ = z/σ, ∂logp/∂log σ = z² − 1.
-            let dmu = dlogp * zs[i] / sigma;
+            let dmu = dlogp * zs[i] / sigma[i];
             d_raw[b * na + i] = match nets.head.mu_bound {
-                Some(bd) => {
-                    let t = raw[i].tanh();
-                    dmu * bd as f32 * (1.0 - t * t)
-                }
+                Some(bd) => dmu * bd as f32 * (1.0 - tanh[i] * tanh[i]),
                 None => dmu,
             };
             d_log_std[i] += (dlogp * (zs[i] * zs[i] - 1.0)) as f64;
