@@ -6,15 +6,15 @@
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
 mod epochs;
+mod stats;
+mod step;
 mod targets;
 
 use super::pcpn_tune::PcpnTuner;
-use super::saver_grad::{policy_grads, saver_actor_losses, PcpnGrad};
-use super::saver_signal::{
-    noise_rank_delta, predicted_delta, rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY,
-};
-use super::{check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats};
-use crate::config::{DeltaTarget, RunConfig, SaverConfig, MU_RAW_LIMIT};
+use super::saver_grad::PcpnGrad;
+use super::saver_signal::{noise_rank_delta, predicted_delta, SignalBatch};
+use super::{update_rows, Algorithm, UpdateStats};
+use crate::config::{DeltaTarget, RunConfig, SaverConfig};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::EnvLayout;
 use crate::nets::{Agent, Critic, Pcpn};
@@ -26,6 +26,9 @@ use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
 use saver_proto::NamedTensor;
 use std::borrow::Cow;
+#[cfg(test)]
+pub(super) use step::mu_raw_penalty;
+use step::{Losses, StepRows};
 use targets::Targets;
 
 /// The update's statistics, and last the PCPN's loss on the batch when it keeps
@@ -113,20 +116,6 @@ pub fn tau_tensors(
         Tensor::from_slice(taus, (d, b, k), dev)?,
         Tensor::from_vec(cos, (d, b, k, EMBED_DIM), dev)?,
     ))
-}
-
-/// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim], the sum
-/// over `entries` only unless empty: a wall that keeps a tanh-bounded mean where tanh
-/// still passes gradient back.
-pub fn mu_raw_penalty(raw: &Tensor, w: f64, entries: &[usize]) -> Result<Tensor> {
-    let raw = if entries.is_empty() {
-        raw.clone()
-    } else {
-        let idx: Vec<u32> = entries.iter().map(|&e| e as u32).collect();
-        raw.index_select(&Tensor::new(idx.as_slice(), raw.device())?, 1)?
-    };
-    let over = (raw.abs()? - MU_RAW_LIMIT)?.relu()?;
-    Ok((over.sqr()?.sum_all()? * (w / raw.dim(0)? as f64))?)
 }
 
 /// SAVER's registration ([`super::entry`]).
@@ -234,55 +223,6 @@ struct Start<'a> {
     vtrace_stats: Vec<(&'static str, f32)>,
 }
 
-/// What one optimiser step trains on: some rows' forward, critic targets [N, d], Δp
-/// targets and advantages.
-struct StepRows<'a> {
-    fwd: &'a Forward,
-    returns: Tensor,
-    target: &'a [f32],
-    adv: &'a [f32],
-}
-
-/// The agent's loss on some rows: L_a and L_mon, the tensor whose gradient trains the
-/// agent, and (fast path) dL/dμ per row.
-struct AgentLoss {
-    actor: f32,
-    mon: f32,
-    loss: Tensor,
-    dmu: Option<Vec<f32>>,
-}
-
-/// One optimiser step's loss, checked and not yet applied.
-struct StepLoss {
-    loss: Tensor,
-    losses: Losses,
-    dmu: Option<Vec<f32>>,
-}
-
-/// An update's losses as reported (the mean over its optimiser steps).
-#[derive(Clone, Copy, Default)]
-struct Losses {
-    actor: f32,
-    mon: f32,
-    critic: f32,
-    grad_norm: f32,
-}
-
-impl Losses {
-    /// The mean of several steps' losses (summed in f64).
-    fn mean(all: &[Losses]) -> Self {
-        let mean = |f: fn(&Losses) -> f32| {
-            (all.iter().map(|l| f(l) as f64).sum::<f64>() / all.len().max(1) as f64) as f32
-        };
-        Self {
-            actor: mean(|l| l.actor),
-            mon: mean(|l| l.mon),
-            critic: mean(|l| l.critic),
-            grad_norm: mean(|l| l.grad_norm),
-        }
-    }
-}
-
 impl Saver {
     /// Agent and critic over the observations `obs`.
     fn forward(&self, obs: Tensor) -> Result<Forward> {
@@ -344,97 +284,6 @@ impl Saver {
         })
     }
 
-    /// The loss of one optimiser step on `rows`: the critic's loss, SAVER's actor loss
-    /// and monotonic penalty and the saturation wall, checked before any step (a
-    /// non-finite one changes nothing).
-    fn step_loss(&mut self, rows: &StepRows) -> Result<StepLoss> {
-        let f = rows.fwd;
-        let (n, d, k) = (f.obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
-        let critic_loss =
-            ((&f.value - &rows.returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
-        let taus = uniform01(&mut self.rng, d * n * k);
-        let a = self.agent_loss(rows, &taus)?;
-        let loss = self.with_penalty((a.loss + &critic_loss)?, &f.raw)?;
-        let losses = Losses {
-            actor: check_finite("actor_loss", a.actor)?,
-            mon: check_finite("mon_loss", a.mon)?,
-            critic: check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
-            grad_norm: 0.0,
-        };
-        Ok(StepLoss {
-            loss,
-            losses,
-            dmu: a.dmu,
-        })
-    }
-
-    /// The optimiser step on a checked loss; its losses with the gradient norm, and
-    /// (fast path) dL/dμ per row.
-    fn take_step(&mut self, s: StepLoss) -> Result<(Losses, Option<Vec<f32>>)> {
-        let grads = s.loss.backward()?;
-        let grad_norm = self.opt.step(&grads)? as f32;
-        Ok((
-            Losses {
-                grad_norm,
-                ..s.losses
-            },
-            s.dmu,
-        ))
-    }
-
-    /// SAVER's actor loss and monotonic penalty on `rows` with τ `taus` [d·N·K].
-    fn agent_loss(&self, rows: &StepRows, taus: &[f32]) -> Result<AgentLoss> {
-        let f = rows.fwd;
-        let (b, d, k) = (f.obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
-        match self.path {
-            GradPath::Fast => {
-                // dL/dμ and dL/dlog σ by hand, then the surrogate Σ μ·dμ + Σ log σ·dlog σ
-                // carries them into the agent through autograd.
-                let g = self
-                    .pcpn
-                    .input_grad(&f.x, rows.target, rows.adv, taus, &self.cfg)?;
-                let (dmu, dls) = policy_grads(&g.dx, self.layout.obs_dim, self.layout.mu_dim())?;
-                let dmu_host = dmu.flatten_all()?.to_vec1::<f32>()?;
-                let loss = ((&f.mu * dmu)?.sum_all()? + (&f.log_std * dls)?.sum_all()?)?;
-                Ok(AgentLoss {
-                    actor: g.actor_loss,
-                    mon: g.mon_loss,
-                    loss,
-                    dmu: Some(dmu_host),
-                })
-            }
-            GradPath::Reference => {
-                let (tau, cos) = tau_tensors(taus, d, b, k, &self.dev)?;
-                let l = saver_actor_losses(
-                    self.pcpn.pcpn(),
-                    &f.obs,
-                    &f.mu,
-                    &f.log_std,
-                    &matrix(rows.target, b, d, &self.dev)?,
-                    &Tensor::from_slice(rows.adv, (b, d), &self.dev)?,
-                    &tau,
-                    &cos,
-                    &self.cfg,
-                )?;
-                Ok(AgentLoss {
-                    actor: l.actor.to_scalar::<f32>()?,
-                    mon: l.mon.to_scalar::<f32>()?,
-                    loss: (l.actor + l.mon)?,
-                    dmu: None,
-                })
-            }
-        }
-    }
-
-    /// `loss` plus the saturation wall on the raw means `raw`, when it is on.
-    fn with_penalty(&self, loss: Tensor, raw: &Tensor) -> Result<Tensor> {
-        if self.cfg.mu_raw_penalty == 0.0 {
-            return Ok(loss);
-        }
-        let (w, entries) = (self.cfg.mu_raw_penalty, &self.cfg.mu_raw_penalty_entries);
-        Ok((loss + mu_raw_penalty(raw, w, entries)?)?)
-    }
-
     /// The PCPN's loss and gradient on the batch's steps (inputs `x`), when it learns.
     fn tune_grads(
         &mut self,
@@ -462,55 +311,6 @@ impl Saver {
             }
             _ => Ok(None),
         }
-    }
-
-    /// The update's statistics: its losses, the policy's and the per-dimension ones of
-    /// the batch at its start, and the signal's (`dmu`: dL/dμ per row, fast path).
-    fn finish(
-        &mut self,
-        batch: &Batch,
-        s: Start,
-        dmu: Option<Vec<f32>>,
-        l: Losses,
-        tune_loss: Option<f32>,
-    ) -> Result<UpdateStats> {
-        let d = self.layout.aligned_dim;
-        let (mu_abs_max, log_std_mean) = policy_diagnostics(&s.fwd.mu, &s.fwd.log_std)?;
-        let signal = SignalBatch::of(
-            batch,
-            &s.mu_host,
-            &s.log_std_host,
-            &s.adv_host,
-            dmu.as_deref(),
-        );
-        let mut per_dim = super::per_dim::per_dim_stats(
-            &s.returns_host,
-            &s.value_host,
-            &batch.vector_reward,
-            &s.mu_host,
-            &s.log_std_host,
-            d,
-            self.mu_bound,
-        );
-        // The rank statistics cost PCPN passes: made on this learner's first update (a
-        // resumed run's per_dim.csv keeps its columns) and every SIGNAL_EVERY-th
-        // optimiser step, the last ones repeated in between.
-        if self.ranks.is_empty() || self.opt.steps().is_multiple_of(SIGNAL_EVERY) {
-            self.ranks = rank_stats(self.pcpn.pcpn(), &self.layout, &signal, &self.dev)?;
-        }
-        per_dim.extend(self.ranks.iter().cloned());
-        per_dim.extend(snr_stats(&self.layout, &signal));
-        let mut values = vec![
-            ("actor_loss", l.actor),
-            ("mon_loss", l.mon),
-            ("critic_loss", l.critic),
-            ("mu_abs_max", mu_abs_max),
-            ("log_std_mean", log_std_mean),
-            ("grad_norm", l.grad_norm),
-        ];
-        values.extend(tune_loss.map(|l| ("pcpn_tune_loss", l)));
-        values.extend(s.vtrace_stats);
-        Ok(UpdateStats { values, per_dim })
     }
 }
 

@@ -1,0 +1,166 @@
+//! One optimiser step of SAVER's update: the critic's loss, the actor loss and monotonic
+//! penalty through the frozen PCPN (fast path or autograd reference), and the saturation wall.
+
+use super::{tau_tensors, Forward, GradPath, Saver};
+use crate::algo::saver_grad::{policy_grads, saver_actor_losses};
+use crate::algo::{check_finite, matrix};
+use crate::config::MU_RAW_LIMIT;
+use crate::rng::uniform01;
+use crate::Result;
+use candle_core::Tensor;
+
+/// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim], the sum
+/// over `entries` only unless empty: a wall that keeps a tanh-bounded mean where tanh
+/// still passes gradient back.
+pub fn mu_raw_penalty(raw: &Tensor, w: f64, entries: &[usize]) -> Result<Tensor> {
+    let raw = if entries.is_empty() {
+        raw.clone()
+    } else {
+        let idx: Vec<u32> = entries.iter().map(|&e| e as u32).collect();
+        raw.index_select(&Tensor::new(idx.as_slice(), raw.device())?, 1)?
+    };
+    let over = (raw.abs()? - MU_RAW_LIMIT)?.relu()?;
+    Ok((over.sqr()?.sum_all()? * (w / raw.dim(0)? as f64))?)
+}
+
+/// What one optimiser step trains on: some rows' forward, critic targets [N, d], Δp
+/// targets and advantages.
+pub(super) struct StepRows<'a> {
+    pub(super) fwd: &'a Forward,
+    pub(super) returns: Tensor,
+    pub(super) target: &'a [f32],
+    pub(super) adv: &'a [f32],
+}
+
+/// The agent's loss on some rows: L_a and L_mon, the tensor whose gradient trains the
+/// agent, and (fast path) dL/dμ per row.
+struct AgentLoss {
+    actor: f32,
+    mon: f32,
+    loss: Tensor,
+    dmu: Option<Vec<f32>>,
+}
+
+/// One optimiser step's loss, checked and not yet applied.
+pub(super) struct StepLoss {
+    loss: Tensor,
+    losses: Losses,
+    dmu: Option<Vec<f32>>,
+}
+
+/// An update's losses as reported (the mean over its optimiser steps).
+#[derive(Clone, Copy, Default)]
+pub(super) struct Losses {
+    pub(super) actor: f32,
+    pub(super) mon: f32,
+    pub(super) critic: f32,
+    pub(super) grad_norm: f32,
+}
+
+impl Losses {
+    /// The mean of several steps' losses (summed in f64).
+    pub(super) fn mean(all: &[Losses]) -> Self {
+        let mean = |f: fn(&Losses) -> f32| {
+            (all.iter().map(|l| f(l) as f64).sum::<f64>() / all.len().max(1) as f64) as f32
+        };
+        Self {
+            actor: mean(|l| l.actor),
+            mon: mean(|l| l.mon),
+            critic: mean(|l| l.critic),
+            grad_norm: mean(|l| l.grad_norm),
+        }
+    }
+}
+
+impl Saver {
+    /// The loss of one optimiser step on `rows`: the critic's loss, SAVER's actor loss
+    /// and monotonic penalty and the saturation wall, checked before any step (a
+    /// non-finite one changes nothing).
+    pub(super) fn step_loss(&mut self, rows: &StepRows) -> Result<StepLoss> {
+        let f = rows.fwd;
+        let (n, d, k) = (f.obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
+        let critic_loss =
+            ((&f.value - &rows.returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
+        let taus = uniform01(&mut self.rng, d * n * k);
+        let a = self.agent_loss(rows, &taus)?;
+        let loss = self.with_penalty((a.loss + &critic_loss)?, &f.raw)?;
+        let losses = Losses {
+            actor: check_finite("actor_loss", a.actor)?,
+            mon: check_finite("mon_loss", a.mon)?,
+            critic: check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
+            grad_norm: 0.0,
+        };
+        Ok(StepLoss {
+            loss,
+            losses,
+            dmu: a.dmu,
+        })
+    }
+
+    /// The optimiser step on a checked loss; its losses with the gradient norm, and
+    /// (fast path) dL/dμ per row.
+    pub(super) fn take_step(&mut self, s: StepLoss) -> Result<(Losses, Option<Vec<f32>>)> {
+        let grads = s.loss.backward()?;
+        let grad_norm = self.opt.step(&grads)? as f32;
+        Ok((
+            Losses {
+                grad_norm,
+                ..s.losses
+            },
+            s.dmu,
+        ))
+    }
+
+    /// SAVER's actor loss and monotonic penalty on `rows` with τ `taus` [d·N·K].
+    fn agent_loss(&self, rows: &StepRows, taus: &[f32]) -> Result<AgentLoss> {
+        let f = rows.fwd;
+        let (b, d, k) = (f.obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
+        match self.path {
+            GradPath::Fast => {
+                // dL/dμ and dL/dlog σ by hand, then the surrogate Σ μ·dμ + Σ log σ·dlog σ
+                // carries them into the agent through autograd.
+                let g = self
+                    .pcpn
+                    .input_grad(&f.x, rows.target, rows.adv, taus, &self.cfg)?;
+                let (dmu, dls) = policy_grads(&g.dx, self.layout.obs_dim, self.layout.mu_dim())?;
+                let dmu_host = dmu.flatten_all()?.to_vec1::<f32>()?;
+                let loss = ((&f.mu * dmu)?.sum_all()? + (&f.log_std * dls)?.sum_all()?)?;
+                Ok(AgentLoss {
+                    actor: g.actor_loss,
+                    mon: g.mon_loss,
+                    loss,
+                    dmu: Some(dmu_host),
+                })
+            }
+            GradPath::Reference => {
+                let (tau, cos) = tau_tensors(taus, d, b, k, &self.dev)?;
+                let l = saver_actor_losses(
+                    self.pcpn.pcpn(),
+                    &f.obs,
+                    &f.mu,
+                    &f.log_std,
+                    &matrix(rows.target, b, d, &self.dev)?,
+                    &Tensor::from_slice(rows.adv, (b, d), &self.dev)?,
+                    &tau,
+                    &cos,
+                    &self.cfg,
+                )?;
+                Ok(AgentLoss {
+                    actor: l.actor.to_scalar::<f32>()?,
+                    mon: l.mon.to_scalar::<f32>()?,
+                    loss: (l.actor + l.mon)?,
+                    dmu: None,
+                })
+            }
+        }
+    }
+
+    /// `loss` plus the saturation wall on the raw means `raw`, when it is on.
+    fn with_penalty(&self, loss: Tensor, raw: &Tensor) -> Result<Tensor> {
+        if self.cfg.mu_raw_penalty == 0.0 {
+            return Ok(loss);
+        }
+        let (w, entries) = (self.cfg.mu_raw_penalty, &self.cfg.mu_raw_penalty_entries);
+        Ok((loss + mu_raw_penalty(raw, w, entries)?)?)
+    }
+}
