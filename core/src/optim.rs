@@ -5,8 +5,12 @@
 //! Adam with TensorFlow-1 semantics: `lr_t = lr·√(1 − β2^t)/(1 − β1^t)`,
 //! `θ ← θ − lr_t·m/(√v + ε̂)`.
 
+mod host;
+
 use crate::{CoreError, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
+pub use host::HostState;
+use host::{apply, to_host};
 use serde::{Deserialize, Serialize};
 
 /// Which optimiser, with its constants.
@@ -87,7 +91,7 @@ pub struct Optimizer {
     decay_over: Option<u64>,
     /// Step on the host in one pass per variable (every variable on the CPU) instead of
     /// a dozen tensor ops; the same f32 arithmetic, so the same bits, but for slots
-    /// flushed below f32's smallest normal ([`flush_subnormal`]).
+    /// flushed below f32's smallest normal ([`host::flush_subnormal`]).
     host: bool,
 }
 
@@ -140,10 +144,7 @@ impl Optimizer {
 
     /// The learning rate the next step will use.
     pub fn current_lr(&self) -> f64 {
-        match self.decay_over {
-            Some(n) => self.lr * (1.0 - self.t.min(n) as f64 / n as f64),
-            None => self.lr,
-        }
+        lr_at(self.lr, self.decay_over, self.t)
     }
 
     /// Steps taken so far.
@@ -151,11 +152,17 @@ impl Optimizer {
         self.t
     }
 
-    /// The global L2 norm of the gradients of this optimiser's variables.
+    /// The global L2 norm of the gradients of this optimiser's variables. A gradient on
+    /// the CPU has its squares summed in f64 in row-major order, as [`HostState::step`]
+    /// sums them, so both clip alike to the bit.
     pub fn grad_norm(&self, grads: &GradStore) -> Result<f64> {
         let mut sq = 0.0f64;
         for (_, v) in &self.vars {
             if let Some(g) = grads.get(v.as_tensor()) {
+                if g.device().is_cpu() {
+                    sq += host::sum_sq(&to_host(g)?);
+                    continue;
+                }
                 sq += g
                     .sqr()?
                     .sum_all()?
@@ -256,7 +263,7 @@ impl Optimizer {
     /// Variable `i`'s new value and slots from its gradient `g`, in one pass on the host:
     /// the arithmetic of the tensor path (each constant rounded to f32 as candle's
     /// affine does), so both give the same bits, but that a new slot value below f32's
-    /// smallest normal is stored as 0 ([`flush_subnormal`]). Non-finite results are
+    /// smallest normal is stored as 0 ([`host::flush_subnormal`]). Non-finite results are
     /// [`CoreError::NonFinite`].
     fn host_step(
         &self,
@@ -267,45 +274,18 @@ impl Optimizer {
         t: u64,
     ) -> Result<(usize, Tensor, Tensor, Option<Tensor>)> {
         let var = &self.vars[i].1;
-        let host = |x: &Tensor| -> Result<Vec<f32>> { Ok(x.flatten_all()?.to_vec1::<f32>()?) };
-        let mut g = host(g)?;
+        let mut g = to_host(g)?;
         if scale < 1.0 {
             let s = scale as f32;
             g.iter_mut().for_each(|x| *x *= s);
         }
-        let mut value = host(var.as_tensor())?;
-        let mut s1 = host(&self.slot1[i])?;
+        let mut value = to_host(var.as_tensor())?;
+        let mut s1 = to_host(&self.slot1[i])?;
         let mut s2 = match self.slot2.get(i) {
-            Some(s) => host(s)?,
+            Some(s) => to_host(s)?,
             None => Vec::new(),
         };
-        // Any non-finite value or slot sets a bit; a bitwise or (no early exit) lets the
-        // loops vectorise, sqrt and division included (the same IEEE results per lane).
-        let mut bad = false;
-        match self.config {
-            OptimizerConfig::Rmsprop { decay, eps, .. } => {
-                let one_minus = 1.0f32 - decay as f32;
-                let (lr, eps) = (lr as f32, eps as f32);
-                for ((w, ms), &g) in value.iter_mut().zip(s1.iter_mut()).zip(&g) {
-                    *ms = flush_subnormal(*ms + (g * g - *ms) * one_minus);
-                    *w -= (g * lr) / (*ms + eps).sqrt();
-                    bad |= !w.is_finite() | !ms.is_finite();
-                }
-            }
-            OptimizerConfig::Adam { beta1, beta2, eps } => {
-                let ti = t as i32;
-                let lr_t = (lr * (1.0 - beta2.powi(ti)).sqrt() / (1.0 - beta1.powi(ti))) as f32;
-                let (b1, b2) = (beta1 as f32, beta2 as f32);
-                let (c1, c2, eps) = ((1.0 - beta1) as f32, (1.0 - beta2) as f32, eps as f32);
-                for (((w, m), v), &g) in value.iter_mut().zip(&mut s1).zip(&mut s2).zip(&g) {
-                    *m = flush_subnormal(*m * b1 + g * c1);
-                    *v = flush_subnormal(*v * b2 + g * g * c2);
-                    *w -= (*m * lr_t) / (v.sqrt() + eps);
-                    bad |= !w.is_finite() | !m.is_finite() | !v.is_finite();
-                }
-            }
-        }
-        if bad {
+        if apply(self.config, lr, t, &mut value, &mut s1, &mut s2, &g) {
             return Err(CoreError::NonFinite(format!(
                 "the step would make the value or a slot of {} non-finite",
                 self.vars[i].0
@@ -371,20 +351,12 @@ impl Optimizer {
     }
 }
 
-/// `x`, or 0 where it is below f32's smallest normal (1.2e-38). A weight whose gradient
-/// stays 0 (a ReLU unit that no row reaches) decays its slots geometrically into
-/// subnormals, where each multiply or square root takes ~100 cycles instead of a few:
-/// after 65 k steps of PPO on angle d = 2, 11 % of the Adam slots were subnormal and the
-/// optimiser's step took 46 % of the run (perf). The flush cannot move a weight above
-/// ~1e-25 in size: with |m| < 1.2e-38 and ε = 1e-8 Adam's step lr_t·m/(√v + ε) is below
-/// 1e-33, under half an ulp of such a weight, and a subnormal v or ms is below the ulp of
-/// the ε it is added to. The tensor path (off the CPU) keeps its subnormals.
-#[inline(always)]
-fn flush_subnormal(x: f32) -> f32 {
-    if x.abs() < f32::MIN_POSITIVE {
-        0.0
-    } else {
-        x
+/// The rate of the step after `t` steps: `lr`, or with `decay_over` = n falling linearly
+/// to zero, `lr·(1 − min(t, n)/n)`.
+fn lr_at(lr: f64, decay_over: Option<u64>, t: u64) -> f64 {
+    match decay_over {
+        Some(n) => lr * (1.0 - t.min(n) as f64 / n as f64),
+        None => lr,
     }
 }
 
@@ -478,8 +450,9 @@ mod tests {
     /// for both optimisers (no slot gets near a subnormal in 6 steps).
     #[test]
     fn the_host_step_equals_the_tensor_step_to_the_bit() {
+        // 0: tensor ops, 1: the host step, 2: a HostState's steps, committed at the end.
         for config in [OptimizerConfig::RMSPROP_TF1, OptimizerConfig::ADAM_TF1] {
-            let run = |host: bool| -> Vec<Vec<f32>> {
+            let run = |mode: usize| -> Vec<Vec<f32>> {
                 let w = Var::from_slice(
                     &(0..15).map(|i| (i as f32 * 0.37).sin()).collect::<Vec<_>>(),
                     (3, 5),
@@ -490,16 +463,48 @@ mod tests {
                 let vars = vec![("w".into(), w.clone()), ("b".into(), b.clone())];
                 let mut opt = Optimizer::with_clip(vars, config, 0.01, Some(2.0)).unwrap();
                 assert!(opt.host);
-                opt.host = host;
+                opt.host = mode > 0;
+                let mut state = (mode == 2).then(|| opt.host_state().unwrap());
+                let mut clipped = 0;
                 let x = Tensor::from_slice(&[0.5f32, -1.5, 2.0, 0.25, -0.75], (5, 1), &Device::Cpu)
                     .unwrap();
                 for k in 0..6 {
-                    // loss = Σ (W·x + b)³ · (k + 1): gradients change with W and k.
-                    let y = (w.as_tensor().matmul(&x).unwrap().squeeze(1).unwrap() + b.as_tensor())
-                        .unwrap();
+                    // loss = Σ (W·x + b)³ · (k + 1): gradients change with W and k (the
+                    // host state's W and b are its own until the commit).
+                    let (wk, bk) = match &state {
+                        Some(h) => (
+                            Var::from_slice(h.value(w.as_tensor()).unwrap(), (3, 5), &Device::Cpu)
+                                .unwrap(),
+                            Var::from_slice(h.value(b.as_tensor()).unwrap(), 3, &Device::Cpu)
+                                .unwrap(),
+                        ),
+                        None => (w.clone(), b.clone()),
+                    };
+                    let y = (wk.as_tensor().matmul(&x).unwrap().squeeze(1).unwrap()
+                        + bk.as_tensor())
+                    .unwrap();
                     let loss = (y.powf(3.0).unwrap().sum_all().unwrap() * (k + 1) as f64).unwrap();
-                    opt.step(&loss.backward().unwrap()).unwrap();
+                    let grads = loss.backward().unwrap();
+                    match &mut state {
+                        Some(h) => {
+                            let g = |v: &Var, of: &Var| {
+                                let g = grads.get(of.as_tensor()).unwrap();
+                                (v.as_tensor().id(), to_host(g).unwrap())
+                            };
+                            let n = h.step(vec![g(&w, &wk), g(&b, &bk)]).unwrap();
+                            clipped += (n > 2.0) as usize;
+                        }
+                        None => {
+                            opt.step(&grads).unwrap();
+                        }
+                    }
                 }
+                if let Some(h) = state {
+                    assert_eq!(h.steps(), 6);
+                    assert!(clipped > 0, "the clip is taken on some step");
+                    opt.commit_host(h).unwrap();
+                }
+                assert_eq!(opt.steps(), 6);
                 let mut out: Vec<Vec<f32>> = [w.as_tensor(), b.as_tensor()]
                     .iter()
                     .map(|t| t.flatten_all().unwrap().to_vec1().unwrap())
@@ -511,8 +516,33 @@ mod tests {
                 );
                 out
             };
-            assert_eq!(run(true), run(false), "{config:?}");
+            let host = run(1);
+            assert_eq!(run(0), host, "{config:?}");
+            assert_eq!(run(2), host, "{config:?}");
         }
+    }
+
+    /// A host state's step that would make a weight non-finite is refused, and a state
+    /// dropped instead of committed leaves the optimiser and its variables untouched;
+    /// a gradient of the wrong size is refused.
+    #[test]
+    fn a_host_state_refuses_bad_steps_and_changes_nothing_until_committed() {
+        let (v, opt) = one_weight(1.0, OptimizerConfig::ADAM_TF1, 0.1);
+        let id = v.as_tensor().id();
+        let mut h = opt.host_state().unwrap();
+        h.step(vec![(id, vec![0.5])]).unwrap();
+        assert!(h.value(v.as_tensor()).unwrap()[0] < 1.0);
+        assert!(matches!(
+            h.step(vec![(id, vec![f32::INFINITY])]),
+            Err(CoreError::NonFinite(_))
+        ));
+        assert!(matches!(
+            h.step(vec![(id, vec![0.5, 0.5])]),
+            Err(CoreError::Data(_))
+        ));
+        drop(h);
+        assert_eq!(v.as_tensor().to_vec1::<f32>().unwrap(), vec![1.0]);
+        assert_eq!(opt.steps(), 0);
     }
 
     /// A weight whose gradient falls to 0 (a ReLU unit no row reaches any more): after

@@ -16,7 +16,7 @@ use super::{
 use crate::config::{PpoConfig, RunConfig};
 use crate::env::EnvLayout;
 use crate::nets::{gaussian_log_prob, Agent, Critic};
-use crate::optim::Optimizer;
+use crate::optim::{HostState, Optimizer};
 use crate::returns::normalize_advantages;
 use crate::rng::{rng_for, streams, SaverRng};
 use crate::rollout::Batch;
@@ -215,21 +215,32 @@ impl Ppo {
         Ok((step_adv, returns, values))
     }
 
-    /// One minibatch's optimiser step; its losses are checked before the step.
-    fn step(&mut self, mb: &Minibatch, totals: &mut Totals) -> Result<()> {
-        let grads = if self.path == GradPath::Fast && self.layout.choices == 0 {
-            fast::step_grads(
-                &self.fast_nets(),
-                mb,
-                &self.cfg,
-                self.value_coef,
-                self.c,
-                totals,
-            )?
-        } else {
-            self.reference_grads(mb, totals)?
+    /// Whether the minibatch steps are the hand-written ones (fast.rs), stepped by the
+    /// optimiser on the host.
+    fn fast(&self) -> bool {
+        self.path == GradPath::Fast && self.layout.choices == 0
+    }
+
+    /// One minibatch's optimiser step; its losses are checked before the step. With
+    /// `host` (the fast path) the step reads and changes the optimiser's host state.
+    fn step(
+        &mut self,
+        mb: &Minibatch,
+        host: Option<&mut HostState>,
+        totals: &mut Totals,
+    ) -> Result<()> {
+        totals.grad_norm += match host {
+            Some(h) => {
+                let nets = self.fast_nets();
+                let grads =
+                    fast::step_grads(&nets, h, mb, &self.cfg, self.value_coef, self.c, totals)?;
+                h.step(grads)?
+            }
+            None => {
+                let grads = self.reference_grads(mb, totals)?;
+                self.opt.step(&grads)?
+            }
         };
-        totals.grad_norm += self.opt.step(&grads)?;
         totals.steps += 1;
         Ok(())
     }
@@ -347,14 +358,20 @@ impl Ppo {
         let m = self.cfg.minibatches(b);
         let mut order: Vec<usize> = (0..b).collect();
         let mut totals = Totals::default();
+        // The fast path's steps read and write the optimiser's host copy of the weights
+        // and slots, committed once after the passes (dropped on an error).
+        let mut opt_host = self.fast().then(|| self.opt.host_state()).transpose()?;
         for _ in 0..self.cfg.epochs {
             order.shuffle(&mut self.rng);
             for j in 0..m {
                 // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
                 let idx = &order[j * b / m..(j + 1) * b / m];
                 let mb = self.minibatch(idx, batch, &host);
-                self.step(&mb, &mut totals)?;
+                self.step(&mb, opt_host.as_mut(), &mut totals)?;
             }
+        }
+        if let Some(h) = opt_host {
+            self.opt.commit_host(h)?;
         }
         let obs = Tensor::from_slice(&batch.obs, (b, self.layout.obs_dim), &self.dev)?;
         let out = self.agent.forward(&obs)?;

@@ -12,26 +12,22 @@ use crate::algo::check_finite;
 use crate::algo::dense::matmul;
 use crate::config::{HeadConfig, PpoConfig};
 use crate::nets::Linear;
+use crate::optim::HostState;
 use crate::Result;
-use candle_core::backprop::GradStore;
-use candle_core::Tensor;
+use candle_core::{Tensor, TensorId};
 
-/// One MLP's layers copied to the host: (weight [in, out] row-major, bias [out]).
-struct HostMlp {
-    layers: Vec<(Vec<f32>, Vec<f32>, usize, usize)>,
+/// One MLP's layers on the host, borrowed from the optimiser's [`HostState`]: (weight
+/// [in, out] row-major, bias [out], in, out).
+struct HostMlp<'a> {
+    layers: Vec<(&'a [f32], &'a [f32], usize, usize)>,
 }
 
-impl HostMlp {
-    fn of(layers: &[&Linear]) -> Result<Self> {
+impl<'a> HostMlp<'a> {
+    fn of(layers: &[&Linear], h: &'a HostState) -> Result<Self> {
         let mut out = Vec::with_capacity(layers.len());
         for l in layers {
             let (i, o) = l.w.dims2()?;
-            out.push((
-                l.w.flatten_all()?.to_vec1::<f32>()?,
-                l.b.to_vec1::<f32>()?,
-                i,
-                o,
-            ));
+            out.push((value(h, &l.w)?, value(h, &l.b)?, i, o));
         }
         Ok(Self { layers: out })
     }
@@ -45,7 +41,7 @@ impl HostMlp {
             matmul(&mut y, input, w, (n, *i, *o), (false, false));
             let last = k + 1 == self.layers.len();
             for row in y.chunks_exact_mut(*o) {
-                for (v, bias) in row.iter_mut().zip(b) {
+                for (v, bias) in row.iter_mut().zip(b.iter()) {
                     *v += bias;
                     if !last && *v < 0.0 {
                         *v = 0.0;
@@ -95,6 +91,12 @@ impl HostMlp {
     }
 }
 
+/// The optimiser's current value of the variable `var`.
+fn value<'a>(h: &'a HostState, var: &Tensor) -> Result<&'a [f32]> {
+    h.value(var)
+        .ok_or_else(|| crate::CoreError::Data("PPO's optimiser does not train a layer".into()))
+}
+
 /// candle's gradient share of `x` in max(x, y) or min(x, y) when `x` is the one taken:
 /// 1, ½ on a tie, 0 when the other one is taken.
 fn share(taken: bool, tie: bool) -> f32 {
@@ -120,22 +122,23 @@ pub(super) struct Nets<'a> {
 }
 
 /// One minibatch step's losses and the gradients of every variable of `nets`, into
-/// `totals` (the stats) and a [`GradStore`] the optimiser takes. `c` is the critic's
-/// outputs; every action entry is continuous (the caller takes the reference path for a
-/// layout with a choice).
+/// `totals` (the stats) and the host gradients [`HostState::step`] takes, at the weights
+/// of the optimiser's host state `h`. `c` is the critic's outputs; every action entry is
+/// continuous (the caller takes the reference path for a layout with a choice).
 pub(super) fn step_grads(
     nets: &Nets,
+    h: &HostState,
     mb: &Minibatch,
     cfg: &PpoConfig,
     value_coef: f64,
     c: usize,
     totals: &mut Totals,
-) -> Result<GradStore> {
+) -> Result<Vec<(TensorId, Vec<f32>)>> {
     let n = mb.n;
-    let agent = HostMlp::of(&nets.agent)?;
-    let critic = HostMlp::of(&nets.critic)?;
+    let agent = HostMlp::of(&nets.agent, h)?;
+    let critic = HostMlp::of(&nets.critic, h)?;
     let na = agent.layers.last().map_or(0, |l| l.3);
-    let raw_log_std = nets.log_std.to_vec1::<f32>()?;
+    let raw_log_std = value(h, nets.log_std)?;
     // log σ = clamp(p, lo, hi); candle's clamp is max(p, lo) then min(·, hi).
     let (log_std, ls_pass): (Vec<f32>, Vec<f32>) = raw_log_std
         .iter()
@@ -247,14 +250,13 @@ pub(super) fn step_grads(
         (policy_loss + value_coef * value_loss - beta * entropy) as f32,
     )?;
 
-    let mut grads = GradStore::default();
-    let dev = nets.log_std.device();
+    let mut grads = Vec::with_capacity(2 * (nets.agent.len() + nets.critic.len()) + 1);
     let a_grads = agent.backward(&mb.obs, &a_acts, d_raw, n);
     let c_grads = critic.backward(&mb.obs, &c_acts, dv, n);
     for (layers, g) in [(&nets.agent, a_grads), (&nets.critic, c_grads)] {
         for (l, (dw, db)) in layers.iter().zip(g) {
-            grads.insert(&l.w, Tensor::from_vec(dw, l.w.shape(), dev)?);
-            grads.insert(&l.b, Tensor::from_vec(db, l.b.shape(), dev)?);
+            grads.push((l.w.id(), dw));
+            grads.push((l.b.id(), db));
         }
     }
     let d_ls: Vec<f32> = d_log_std
@@ -262,10 +264,7 @@ pub(super) fn step_grads(
         .zip(&ls_pass)
         .map(|(&g, &p)| (g as f32 - beta as f32) * p)
         .collect();
-    grads.insert(
-        nets.log_std,
-        Tensor::from_vec(d_ls, raw_log_std.len(), dev)?,
-    );
+    grads.push((nets.log_std.id(), d_ls));
 
     totals.policy_loss += pl as f64;
     totals.value_loss += vl as f64;

@@ -181,24 +181,37 @@ fn the_vector_critic_learns_each_coordinate_apart() {
 /// Every variable's gradient of one minibatch step by `path`, with the step's totals.
 fn step_grads(ppo: &Ppo, mb: &Minibatch, path: GradPath) -> (Vec<(String, Vec<f32>)>, Totals) {
     let mut totals = Totals::default();
-    let grads = match path {
-        GradPath::Fast => {
-            let nets = ppo.fast_nets();
-            fast::step_grads(&nets, mb, &ppo.cfg, ppo.value_coef, ppo.c, &mut totals).unwrap()
-        }
-        GradPath::Reference => ppo.reference_grads(mb, &mut totals).unwrap(),
-    };
     let mut vars = ppo.agent.params().vars.clone();
     vars.extend(ppo.critic.params().vars.clone());
-    let g = vars
-        .iter()
-        .map(|(name, v)| {
-            let g = grads
-                .get(v.as_tensor())
-                .unwrap_or_else(|| panic!("no gradient for {name}"));
-            (name.clone(), g.flatten_all().unwrap().to_vec1().unwrap())
-        })
-        .collect();
+    let g = match path {
+        GradPath::Fast => {
+            let (nets, h) = (ppo.fast_nets(), ppo.opt.host_state().unwrap());
+            let grads =
+                fast::step_grads(&nets, &h, mb, &ppo.cfg, ppo.value_coef, ppo.c, &mut totals)
+                    .unwrap();
+            assert_eq!(grads.len(), vars.len(), "one gradient per variable");
+            vars.iter()
+                .map(|(name, v)| {
+                    let (_, g) = grads
+                        .iter()
+                        .find(|(id, _)| *id == v.as_tensor().id())
+                        .unwrap_or_else(|| panic!("no gradient for {name}"));
+                    (name.clone(), g.clone())
+                })
+                .collect()
+        }
+        GradPath::Reference => {
+            let grads = ppo.reference_grads(mb, &mut totals).unwrap();
+            vars.iter()
+                .map(|(name, v)| {
+                    let g = grads
+                        .get(v.as_tensor())
+                        .unwrap_or_else(|| panic!("no gradient for {name}"));
+                    (name.clone(), g.flatten_all().unwrap().to_vec1().unwrap())
+                })
+                .collect()
+        }
+    };
     (g, totals)
 }
 
