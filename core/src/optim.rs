@@ -540,6 +540,10 @@ mod tests {
             h.step(vec![(id, vec![0.5, 0.5])]),
             Err(CoreError::Data(_))
         ));
+        assert!(matches!(
+            h.step(vec![(id, vec![0.5]), (id, vec![0.5])]),
+            Err(CoreError::Data(_))
+        ));
         drop(h);
         assert_eq!(v.as_tensor().to_vec1::<f32>().unwrap(), vec![1.0]);
         assert_eq!(opt.steps(), 0);

@@ -295,7 +295,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let threads = threads_for(args.threads.unwrap_or(crate::pcpn_threads()));
     if threads > 1 {
         crate::out!(
-            "\nSAVER with its PCPN blocks on {threads} threads (the default: one per core):"
+            "\nSAVER with its PCPN blocks and PPO with its critic's part on {threads} threads \
+             (the default: one per core):"
         );
         crate::out!(
             "{:<6} {:>3} {:>12} {:>14} {:>14}",
@@ -305,16 +306,17 @@ pub fn run(args: BenchArgs) -> Result<()> {
             "steps/s",
             "vs 1 thread"
         );
-        for (&d, one) in args.dims.iter().zip(single) {
-            let (s, _, n) =
-                time_update(Algo::Saver, d, args.seconds, threads, false, GradPath::Fast)?;
-            crate::out!(
-                "{:<6} {d:>3} {:>12.2} {:>14.0} {:>13.2}x",
-                "saver",
-                s * 1e3,
-                n as f64 / s,
-                one / s
-            );
+        for (algo, ones) in [(Algo::Saver, &single), (Algo::Ppo, &ppo)] {
+            for (&d, one) in args.dims.iter().zip(ones) {
+                let (s, _, n) = time_update(algo, d, args.seconds, threads, false, GradPath::Fast)?;
+                crate::out!(
+                    "{:<6} {d:>3} {:>12.2} {:>14.0} {:>13.2}x",
+                    algo.name(),
+                    s * 1e3,
+                    n as f64 / s,
+                    one / s
+                );
+            }
         }
     }
     pretraining(&args, peak, threads)?;

@@ -62,6 +62,9 @@ pub struct Ppo {
     cfg: PpoConfig,
     /// Which gradient implementation runs.
     path: GradPath,
+    /// Threads of the hand-written step (0: one per core): from 2 on, the critic's part
+    /// of each minibatch runs beside the agent's (the same bits).
+    threads: usize,
     /// Device.
     dev: Device,
 }
@@ -188,6 +191,7 @@ impl Ppo {
             bootstrap_timeout: config.bootstrap_timeout,
             cfg: config.ppo.clone(),
             path: GradPath::for_device(dev),
+            threads: 0,
             dev: dev.clone(),
         })
     }
@@ -232,8 +236,17 @@ impl Ppo {
         totals.grad_norm += match host {
             Some(h) => {
                 let nets = self.fast_nets();
-                let grads =
-                    fast::step_grads(&nets, h, mb, &self.cfg, self.value_coef, self.c, totals)?;
+                let parallel = super::fused::threads_for(self.threads) > 1;
+                let grads = fast::step_grads(
+                    &nets,
+                    h,
+                    mb,
+                    &self.cfg,
+                    self.value_coef,
+                    self.c,
+                    parallel,
+                    totals,
+                )?;
                 h.step(grads)?
             }
             None => {
@@ -453,6 +466,10 @@ impl Algorithm for Ppo {
 
     fn set_grad_path(&mut self, path: GradPath) {
         self.path = path;
+    }
+
+    fn set_threads(&mut self, n: usize) {
+        self.threads = n;
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {

@@ -116,8 +116,9 @@ impl HostState {
 
     /// One step with `grads` (variable tensor id, gradient in the variable's row-major
     /// order); variables without a gradient are left alone. Returns the gradients'
-    /// global norm before clipping (summed in f64). A gradient of the wrong size or for
-    /// a variable the optimiser does not train is [`CoreError::Data`]; a non-finite
+    /// global norm before clipping (summed in f64). A gradient of the wrong size, for a
+    /// variable the optimiser does not train or for one already given is
+    /// [`CoreError::Data`]; a non-finite
     /// norm, or a step that would make a value or slot non-finite, is
     /// [`CoreError::NonFinite`] and leaves this state unusable: drop it (nothing has
     /// been written back).
@@ -127,6 +128,11 @@ impl HostState {
             let i = self.index(*id).ok_or_else(|| {
                 CoreError::Data("a host gradient for a variable not trained here".into())
             })?;
+            if at.contains(&i) {
+                return Err(CoreError::Data(
+                    "two host gradients for one variable in one step".into(),
+                ));
+            }
             if g.len() != self.values[i].len() {
                 return Err(CoreError::Data(format!(
                     "a host gradient of {} elements for a variable of {}",

@@ -124,9 +124,40 @@ pub(super) struct Nets<'a> {
 /// One minibatch step's losses and the gradients of every variable of `nets`, into
 /// `totals` (the stats) and the host gradients [`HostState::step`] takes, at the weights
 /// of the optimiser's host state `h`. `c` is the critic's outputs; every action entry is
-/// continuous (the caller takes the reference path for a layout with a choice).
+/// continuous (the caller takes the reference path for a layout with a choice). With
+/// `parallel` the critic's forward and backward run on a second thread.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn step_grads(
     nets: &Nets,
+    h: &HostState,
+    mb: &Minibatch,
+    cfg: &PpoConfig,
+    value_coef: f64,
+    c: usize,
+    parallel: bool,
+    totals: &mut Totals,
+) -> Result<Vec<(TensorId, Vec<f32>)>> {
+    let agent = HostMlp::of(&nets.agent, h)?;
+    let critic = HostMlp::of(&nets.critic, h)?;
+    std::thread::scope(|scope| {
+        // The critic's part on a second thread while this one does the agent's: the
+        // two share no sums, so the bits are the same either way.
+        let critic_job =
+            parallel.then(|| scope.spawn(|| value_grads(&critic, mb, cfg, value_coef, c)));
+        policy_and_grads(
+            nets, &agent, &critic, critic_job, h, mb, cfg, value_coef, c, totals,
+        )
+    })
+}
+
+/// The agent's part of [`step_grads`], the critic's from `critic_job` (or computed
+/// here), then the checks and every gradient.
+#[allow(clippy::too_many_arguments)]
+fn policy_and_grads<'s>(
+    nets: &Nets,
+    agent: &HostMlp,
+    critic: &HostMlp,
+    critic_job: Option<std::thread::ScopedJoinHandle<'s, CriticGrads>>,
     h: &HostState,
     mb: &Minibatch,
     cfg: &PpoConfig,
@@ -135,8 +166,6 @@ pub(super) fn step_grads(
     totals: &mut Totals,
 ) -> Result<Vec<(TensorId, Vec<f32>)>> {
     let n = mb.n;
-    let agent = HostMlp::of(&nets.agent, h)?;
-    let critic = HostMlp::of(&nets.critic, h)?;
     let na = agent.layers.last().map_or(0, |l| l.3);
     let raw_log_std = value(h, nets.log_std)?;
     // log σ = clamp(p, lo, hi); candle's clamp is max(p, lo) then min(·, hi).
@@ -212,7 +241,58 @@ pub(super) fn step_grads(
     let entropy: f64 = log_std.iter().map(|&l| l as f64 + half_log_2pi_e).sum();
     let beta = cfg.entropy_coef;
 
-    // The critic: V [n, c], c_v·mean (V − R)² (or the larger of it and the clipped one).
+    // The agent's backward before the critic's part is waited for: the larger share of
+    // the overlap.
+    let a_grads = agent.backward(&mb.obs, &a_acts, d_raw, n);
+    let (c_grads, value_loss) = match critic_job {
+        Some(job) => job
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic)),
+        None => value_grads(critic, mb, cfg, value_coef, c),
+    };
+    let policy_loss = policy_loss * inv_n as f64;
+    let pl = check_finite("policy_loss", policy_loss as f32)?;
+    let vl = check_finite("value_loss", value_loss as f32)?;
+    check_finite(
+        "loss",
+        (policy_loss + value_coef * value_loss - beta * entropy) as f32,
+    )?;
+
+    let mut grads = Vec::with_capacity(2 * (nets.agent.len() + nets.critic.len()) + 1);
+    for (layers, g) in [(&nets.agent, a_grads), (&nets.critic, c_grads)] {
+        for (l, (dw, db)) in layers.iter().zip(g) {
+            grads.push((l.w.id(), dw));
+            grads.push((l.b.id(), db));
+        }
+    }
+    let d_ls: Vec<f32> = d_log_std
+        .iter()
+        .zip(&ls_pass)
+        .map(|(&g, &p)| (g as f32 - beta as f32) * p)
+        .collect();
+    grads.push((nets.log_std.id(), d_ls));
+
+    totals.policy_loss += pl as f64;
+    totals.value_loss += vl as f64;
+    totals.entropy += entropy;
+    totals.approx_kl += kl / n as f64;
+    totals.clip_fraction += outside as f64 / n as f64;
+    Ok(grads)
+}
+
+/// Each critic layer's (dW, db) and the value loss over a minibatch: c_v·mean (V − R)²,
+/// or the larger of it and the clipped one's.
+type CriticGrads = (Vec<(Vec<f32>, Vec<f32>)>, f64);
+
+/// The critic's part of [`step_grads`]: V [n, c], its loss and its gradients.
+fn value_grads(
+    critic: &HostMlp,
+    mb: &Minibatch,
+    cfg: &PpoConfig,
+    value_coef: f64,
+    c: usize,
+) -> CriticGrads {
+    let n = mb.n;
     let c_acts = critic.forward(&mb.obs, n);
     let v = &c_acts[c_acts.len() - 1];
     let scale = (2.0 * value_coef / (n * c) as f64) as f32;
@@ -242,34 +322,6 @@ pub(super) fn step_grads(
         }
     }
     let value_loss = value_loss / (n * c) as f64;
-    let policy_loss = policy_loss * inv_n as f64;
-    let pl = check_finite("policy_loss", policy_loss as f32)?;
-    let vl = check_finite("value_loss", value_loss as f32)?;
-    check_finite(
-        "loss",
-        (policy_loss + value_coef * value_loss - beta * entropy) as f32,
-    )?;
-
-    let mut grads = Vec::with_capacity(2 * (nets.agent.len() + nets.critic.len()) + 1);
-    let a_grads = agent.backward(&mb.obs, &a_acts, d_raw, n);
-    let c_grads = critic.backward(&mb.obs, &c_acts, dv, n);
-    for (layers, g) in [(&nets.agent, a_grads), (&nets.critic, c_grads)] {
-        for (l, (dw, db)) in layers.iter().zip(g) {
-            grads.push((l.w.id(), dw));
-            grads.push((l.b.id(), db));
-        }
-    }
-    let d_ls: Vec<f32> = d_log_std
-        .iter()
-        .zip(&ls_pass)
-        .map(|(&g, &p)| (g as f32 - beta as f32) * p)
-        .collect();
-    grads.push((nets.log_std.id(), d_ls));
-
-    totals.policy_loss += pl as f64;
-    totals.value_loss += vl as f64;
-    totals.entropy += entropy;
-    totals.approx_kl += kl / n as f64;
-    totals.clip_fraction += outside as f64 / n as f64;
-    Ok(grads)
+    let grads = critic.backward(&mb.obs, &c_acts, dv, n);
+    (grads, value_loss)
 }
