@@ -9,8 +9,8 @@ mod host;
 
 use crate::{CoreError, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
+use host::to_host;
 pub use host::HostState;
-use host::{apply, to_host};
 use serde::{Deserialize, Serialize};
 
 /// Which optimiser, with its constants.
@@ -153,7 +153,7 @@ impl Optimizer {
     }
 
     /// The global L2 norm of the gradients of this optimiser's variables. A gradient on
-    /// the CPU has its squares summed in f64 in row-major order, as [`HostState::step`]
+    /// the CPU has its squares summed in f64 in row-major order, as [`Optimizer::step_host`]
     /// sums them, so both clip alike to the bit.
     pub fn grad_norm(&self, grads: &GradStore) -> Result<f64> {
         let mut sq = 0.0f64;
@@ -179,6 +179,20 @@ impl Optimizer {
     /// or slot non-finite, changes nothing (not even the step count) and is
     /// [`CoreError::NonFinite`]: one bad batch never poisons the weights.
     pub fn step(&mut self, grads: &GradStore) -> Result<f64> {
+        if self.host {
+            // One pass per variable on the host: copy, step, commit (nothing is written
+            // back when the step fails).
+            let mut host_grads = Vec::with_capacity(self.vars.len());
+            for (_, v) in &self.vars {
+                if let Some(g) = grads.get(v.as_tensor()) {
+                    host_grads.push((v.as_tensor().id(), to_host(g)?));
+                }
+            }
+            let mut h = self.host_state()?;
+            let norm = self.step_host(&mut h, host_grads)?;
+            self.commit_host(h)?;
+            return Ok(norm);
+        }
         let lr = self.current_lr();
         let norm = self.grad_norm(grads)?;
         if !norm.is_finite() {
@@ -199,10 +213,6 @@ impl Optimizer {
             };
             // Gradients can carry the op graph that produced them; the slots must not
             // keep it (and the previous slots) alive from step to step.
-            if self.host {
-                next.push(self.host_step(i, g, scale, lr, t)?);
-                continue;
-            }
             let g = &if scale < 1.0 {
                 (g * scale)?.detach()
             } else {
@@ -227,8 +237,7 @@ impl Optimizer {
                 }
             }
         }
-        // The host steps checked their values as they made them.
-        for (i, value, s1, s2) in next.iter().filter(|_| !self.host) {
+        for (i, value, s1, s2) in &next {
             for (what, x) in [
                 ("value", Some(value)),
                 ("slot", Some(s1)),
@@ -258,50 +267,6 @@ impl Optimizer {
         }
         self.t = t;
         Ok(norm)
-    }
-
-    /// Variable `i`'s new value and slots from its gradient `g`, in one pass on the host:
-    /// the arithmetic of the tensor path (each constant rounded to f32 as candle's
-    /// affine does), so both give the same bits, but that a new slot value below f32's
-    /// smallest normal is stored as 0 ([`host::flush_subnormal`]). Non-finite results are
-    /// [`CoreError::NonFinite`].
-    fn host_step(
-        &self,
-        i: usize,
-        g: &Tensor,
-        scale: f64,
-        lr: f64,
-        t: u64,
-    ) -> Result<(usize, Tensor, Tensor, Option<Tensor>)> {
-        let var = &self.vars[i].1;
-        let mut g = to_host(g)?;
-        if scale < 1.0 {
-            let s = scale as f32;
-            g.iter_mut().for_each(|x| *x *= s);
-        }
-        let mut value = to_host(var.as_tensor())?;
-        let mut s1 = to_host(&self.slot1[i])?;
-        let mut s2 = match self.slot2.get(i) {
-            Some(s) => to_host(s)?,
-            None => Vec::new(),
-        };
-        if apply(self.config, lr, t, &mut value, &mut s1, &mut s2, &g) {
-            return Err(CoreError::NonFinite(format!(
-                "the step would make the value or a slot of {} non-finite",
-                self.vars[i].0
-            )));
-        }
-        let shape = var.shape().clone();
-        let dev = var.device();
-        let s2 = (!s2.is_empty())
-            .then(|| Tensor::from_vec(s2, shape.clone(), dev))
-            .transpose()?;
-        Ok((
-            i,
-            Tensor::from_vec(value, shape.clone(), dev)?,
-            Tensor::from_vec(s1, shape, dev)?,
-            s2,
-        ))
     }
 
     /// The slots as named tensors (`opt.<slot>.<var>`), for checkpoints.
@@ -491,7 +456,7 @@ mod tests {
                                 let g = grads.get(of.as_tensor()).unwrap();
                                 (v.as_tensor().id(), to_host(g).unwrap())
                             };
-                            let n = h.step(vec![g(&w, &wk), g(&b, &bk)]).unwrap();
+                            let n = opt.step_host(h, vec![g(&w, &wk), g(&b, &bk)]).unwrap();
                             clipped += (n > 2.0) as usize;
                         }
                         None => {
@@ -530,18 +495,18 @@ mod tests {
         let (v, opt) = one_weight(1.0, OptimizerConfig::ADAM_TF1, 0.1);
         let id = v.as_tensor().id();
         let mut h = opt.host_state().unwrap();
-        h.step(vec![(id, vec![0.5])]).unwrap();
+        opt.step_host(&mut h, vec![(id, vec![0.5])]).unwrap();
         assert!(h.value(v.as_tensor()).unwrap()[0] < 1.0);
         assert!(matches!(
-            h.step(vec![(id, vec![f32::INFINITY])]),
+            opt.step_host(&mut h, vec![(id, vec![f32::INFINITY])]),
             Err(CoreError::NonFinite(_))
         ));
         assert!(matches!(
-            h.step(vec![(id, vec![0.5, 0.5])]),
+            opt.step_host(&mut h, vec![(id, vec![0.5, 0.5])]),
             Err(CoreError::Data(_))
         ));
         assert!(matches!(
-            h.step(vec![(id, vec![0.5]), (id, vec![0.5])]),
+            opt.step_host(&mut h, vec![(id, vec![0.5]), (id, vec![0.5])]),
             Err(CoreError::Data(_))
         ));
         drop(h);

@@ -247,7 +247,7 @@ impl Ppo {
                     parallel,
                     totals,
                 )?;
-                h.step(grads)?
+                self.opt.step_host(h, grads)?
             }
             None => {
                 let grads = self.reference_grads(mb, totals)?;

@@ -1,7 +1,7 @@
 //! The optimiser's arithmetic on the host: one pass per variable over plain `f32`
-//! buffers, used by [`Optimizer::step`] for variables on the CPU, and [`HostState`], a
-//! run of steps from host gradients (PPO's hand-written minibatch steps) that reads and
-//! writes no tensor until [`Optimizer::commit_host`].
+//! buffers in a [`HostState`]. [`Optimizer::step`] takes its CPU steps through one (copy,
+//! step, commit); PPO's hand-written minibatch steps keep one for a whole update, so no
+//! tensor is read or written between them until [`Optimizer::commit_host`].
 
 use super::{Optimizer, OptimizerConfig};
 use crate::{CoreError, Result};
@@ -13,7 +13,7 @@ use candle_core::{Tensor, TensorId};
 /// rounds it, so both give the same bits, but that a new slot value below f32's smallest
 /// normal is stored as 0 ([`flush_subnormal`]). True when any new value or slot is
 /// non-finite.
-pub(super) fn apply(
+fn apply(
     config: OptimizerConfig,
     lr: f64,
     t: u64,
@@ -79,23 +79,19 @@ pub(super) fn to_host(x: &Tensor) -> Result<Vec<f32>> {
 }
 
 /// An optimiser's variables, slots and step count copied to the host
-/// ([`Optimizer::host_state`]): [`HostState::step`] takes steps from host gradients with
-/// the optimiser's arithmetic, rate schedule and clip, and [`Optimizer::commit_host`]
-/// writes the result back. Nothing reaches the optimiser or its variables before the
+/// ([`Optimizer::host_state`]): [`Optimizer::step_host`] takes steps on it from host
+/// gradients with the optimiser's arithmetic, rate schedule and clip, and
+/// [`Optimizer::commit_host`] writes the result back. Nothing reaches the optimiser or its variables before the
 /// commit, so dropping the state instead leaves them as they were.
 pub struct HostState {
     /// The variables' tensor ids, in the optimiser's order.
     ids: Vec<TensorId>,
     values: Vec<Vec<f32>>,
     s1: Vec<Vec<f32>>,
-    /// Empty per variable for RMSProp.
+    /// Empty for RMSProp.
     s2: Vec<Vec<f32>>,
     /// Steps taken, as [`Optimizer::steps`].
     t: u64,
-    config: OptimizerConfig,
-    lr: f64,
-    clip: Option<f64>,
-    decay_over: Option<u64>,
 }
 
 impl HostState {
@@ -113,77 +109,10 @@ impl HostState {
     fn index(&self, id: TensorId) -> Option<usize> {
         self.ids.iter().position(|&i| i == id)
     }
-
-    /// One step with `grads` (variable tensor id, gradient in the variable's row-major
-    /// order); variables without a gradient are left alone. Returns the gradients'
-    /// global norm before clipping (summed in f64). A gradient of the wrong size, for a
-    /// variable the optimiser does not train or for one already given is
-    /// [`CoreError::Data`]; a non-finite
-    /// norm, or a step that would make a value or slot non-finite, is
-    /// [`CoreError::NonFinite`] and leaves this state unusable: drop it (nothing has
-    /// been written back).
-    pub fn step(&mut self, mut grads: Vec<(TensorId, Vec<f32>)>) -> Result<f64> {
-        let mut at = Vec::with_capacity(grads.len());
-        for (id, g) in &grads {
-            let i = self.index(*id).ok_or_else(|| {
-                CoreError::Data("a host gradient for a variable not trained here".into())
-            })?;
-            if at.contains(&i) {
-                return Err(CoreError::Data(
-                    "two host gradients for one variable in one step".into(),
-                ));
-            }
-            if g.len() != self.values[i].len() {
-                return Err(CoreError::Data(format!(
-                    "a host gradient of {} elements for a variable of {}",
-                    g.len(),
-                    self.values[i].len()
-                )));
-            }
-            at.push(i);
-        }
-        // Summed per variable in the optimiser's order, as `Optimizer::grad_norm` sums.
-        let mut sq = 0.0f64;
-        for i in 0..self.ids.len() {
-            if let Some(k) = at.iter().position(|&j| j == i) {
-                sq += sum_sq(&grads[k].1);
-            }
-        }
-        let norm = sq.sqrt();
-        if !norm.is_finite() {
-            return Err(CoreError::NonFinite(format!("the gradient norm is {norm}")));
-        }
-        let lr = super::lr_at(self.lr, self.decay_over, self.t);
-        let t = self.t + 1;
-        if let Some(c) = self.clip.filter(|&c| norm > c) {
-            let s = (c / norm) as f32;
-            for (_, g) in &mut grads {
-                g.iter_mut().for_each(|x| *x *= s);
-            }
-        }
-        for (&i, (_, g)) in at.iter().zip(&grads) {
-            let s2 = self.s2.get_mut(i).map_or(&mut [][..], |s| &mut s[..]);
-            if apply(
-                self.config,
-                lr,
-                t,
-                &mut self.values[i],
-                &mut self.s1[i],
-                s2,
-                g,
-            ) {
-                return Err(CoreError::NonFinite(
-                    "a host step would make a value or a slot non-finite".into(),
-                ));
-            }
-        }
-        self.t = t;
-        Ok(norm)
-    }
 }
 
 impl Optimizer {
-    /// The variables, slots and step count on the host, for a run of [`HostState::step`]s
+    /// The variables, slots and step count on the host, for a run of [`Optimizer::step_host`]s
     /// (every variable on the CPU); [`Optimizer::commit_host`] writes them back.
     pub fn host_state(&self) -> Result<HostState> {
         let all = |ts: &[Tensor]| ts.iter().map(to_host).collect::<Result<Vec<_>>>();
@@ -198,32 +127,102 @@ impl Optimizer {
             s1: all(&self.slot1)?,
             s2: all(&self.slot2)?,
             t: self.t,
-            config: self.config,
-            lr: self.lr,
-            clip: self.clip,
-            decay_over: self.decay_over,
         })
     }
 
-    /// Writes a [`HostState`] made by this optimiser back: the variables' values, the
-    /// slots and the step count.
-    pub fn commit_host(&mut self, h: HostState) -> Result<()> {
+    /// Whether `h` holds this optimiser's variables.
+    fn made(&self, h: &HostState) -> Result<()> {
         let same = h.ids.len() == self.vars.len()
             && h.ids
                 .iter()
                 .zip(&self.vars)
                 .all(|(&id, (_, v))| id == v.as_tensor().id());
-        if !same {
-            return Err(CoreError::Data(
-                "a host state committed to an optimiser that did not make it".into(),
-            ));
+        if same {
+            Ok(())
+        } else {
+            Err(CoreError::Data(
+                "a host state used with an optimiser that did not make it".into(),
+            ))
         }
-        for (i, (_, var)) in self.vars.iter().enumerate() {
+    }
+
+    /// One step on the host state `h` with `grads` (variable tensor id, gradient in the
+    /// variable's row-major order), with this optimiser's constants, rate schedule and
+    /// clip; variables without a gradient are left alone. Returns the gradients' global
+    /// norm before clipping (squares summed in f64 per variable, in the optimiser's
+    /// order). A gradient of the wrong size, for a variable the optimiser does not train
+    /// or for one already given is [`CoreError::Data`]; a non-finite norm, or a step
+    /// that would make a value or slot non-finite, is [`CoreError::NonFinite`] and
+    /// leaves `h` unusable: drop it (nothing has been written back).
+    pub fn step_host(
+        &self,
+        h: &mut HostState,
+        mut grads: Vec<(TensorId, Vec<f32>)>,
+    ) -> Result<f64> {
+        self.made(h)?;
+        let mut at = Vec::with_capacity(grads.len());
+        for (id, g) in &grads {
+            let i = h.index(*id).ok_or_else(|| {
+                CoreError::Data("a host gradient for a variable not trained here".into())
+            })?;
+            if at.contains(&i) {
+                return Err(CoreError::Data(
+                    "two host gradients for one variable in one step".into(),
+                ));
+            }
+            if g.len() != h.values[i].len() {
+                return Err(CoreError::Data(format!(
+                    "a host gradient of {} elements for {} of {}",
+                    g.len(),
+                    self.vars[i].0,
+                    h.values[i].len()
+                )));
+            }
+            at.push(i);
+        }
+        let mut sq = 0.0f64;
+        for i in 0..h.ids.len() {
+            if let Some(k) = at.iter().position(|&j| j == i) {
+                sq += sum_sq(&grads[k].1);
+            }
+        }
+        let norm = sq.sqrt();
+        if !norm.is_finite() {
+            return Err(CoreError::NonFinite(format!("the gradient norm is {norm}")));
+        }
+        let lr = super::lr_at(self.lr, self.decay_over, h.t);
+        let t = h.t + 1;
+        if let Some(c) = self.clip.filter(|&c| norm > c) {
+            let s = (c / norm) as f32;
+            for (_, g) in &mut grads {
+                g.iter_mut().for_each(|x| *x *= s);
+            }
+        }
+        for (&i, (_, g)) in at.iter().zip(&grads) {
+            let s2 = h.s2.get_mut(i).map_or(&mut [][..], |s| &mut s[..]);
+            if apply(self.config, lr, t, &mut h.values[i], &mut h.s1[i], s2, g) {
+                return Err(CoreError::NonFinite(format!(
+                    "the step would make the value or a slot of {} non-finite",
+                    self.vars[i].0
+                )));
+            }
+        }
+        h.t = t;
+        Ok(norm)
+    }
+
+    /// Writes a [`HostState`] made by this optimiser back: the variables' values, the
+    /// slots and the step count.
+    pub fn commit_host(&mut self, h: HostState) -> Result<()> {
+        self.made(&h)?;
+        let mut s2 = h.s2.into_iter();
+        for (i, (value, s1)) in h.values.into_iter().zip(h.s1).enumerate() {
+            let var = &self.vars[i].1;
             let (shape, dev) = (var.shape().clone(), var.device().clone());
-            var.set(&Tensor::from_slice(&h.values[i], shape.clone(), &dev)?)?;
-            self.slot1[i] = Tensor::from_slice(&h.s1[i], shape.clone(), &dev)?;
-            if let Some(s) = h.s2.get(i) {
-                self.slot2[i] = Tensor::from_slice(s, shape, &dev)?;
+            var.set(&Tensor::from_vec(value, shape.clone(), &dev)?)?;
+            self.slot1[i] = Tensor::from_vec(s1, shape.clone(), &dev)?;
+            if let Some(s) = s2.next() {
+                self.slot2[i] = Tensor::from_vec(s, shape, &dev)?;
             }
         }
         self.t = h.t;
