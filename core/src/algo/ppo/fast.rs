@@ -122,7 +122,7 @@ pub(super) struct Nets<'a> {
 }
 
 /// One minibatch step's losses and the gradients of every variable of `nets`, into
-/// `totals` (the stats) and the host gradients [`HostState::step`] takes, at the weights
+/// `totals` (the stats) and the host gradients [`crate::optim::Optimizer::step_host`] takes, at the weights
 /// of the optimiser's host state `h`. `c` is the critic's outputs; every action entry is
 /// continuous (the caller takes the reference path for a layout with a choice). With
 /// `parallel` the critic's forward and backward run on a second thread.
