@@ -16,6 +16,7 @@ from typing import Callable, List, Optional
 import grpc
 import numpy as np
 from safetensors.numpy import load as load_safetensors
+from threadpoolctl import threadpool_limits
 
 from ._proto import saver_pb2 as pb
 from ._proto import saver_pb2_grpc as pb_grpc
@@ -208,7 +209,9 @@ class Actor:
         self.name = name or f"py-actor-{random.getrandbits(24):06x}"
         self.give_up, self.log = give_up, log
         # env_processes > 0: the envs step in that many worker processes at once.
-        self.envs = (ProcessEnvs(make_env, n_envs, decl.obs_dim, env_processes) if env_processes > 0
+        # (A step's infos cross to the actor only when the declaration's vector reward reads them.)
+        self.envs = (ProcessEnvs(make_env, n_envs, decl.obs_dim, env_processes, decl.env_action_width,
+                                 infos=decl.vector_reward is not None) if env_processes > 0
                      else LocalEnvs(make_env, n_envs, decl.obs_dim))
         self.actions = ActionMap(decl.continuous, decl.action_dim, self.envs.action_space)
         self.stop = threading.Event()
@@ -362,6 +365,12 @@ class Actor:
 
     # ---- the reconnect loop ----------------------------------------------------------
     def run(self) -> Summary:
+        # One BLAS thread: the policy's forward pass has E rows, and BLAS's own threads
+        # would spin on the cores the envs (and their worker processes) need.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._run()
+
+    def _run(self) -> Summary:
         start = time.monotonic()
         attempt, last_contact = 0, time.monotonic()
         try:

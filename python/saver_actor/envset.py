@@ -8,6 +8,7 @@ ends: at its goal or at the run's step limit).
 from __future__ import annotations
 
 import multiprocessing as mp
+import pickle
 import traceback
 from typing import Any, Callable, List, Optional, Sequence
 
@@ -18,17 +19,14 @@ def _own_limit(env) -> Optional[int]:
     return getattr(getattr(env, "spec", None), "max_episode_steps", None)
 
 
-def _step_all(envs, actions, obs_out):
-    """Steps envs[i] with actions[i]; observations go into obs_out [k, obs_dim]."""
-    k = len(envs)
-    rewards = np.empty(k)
-    terminated = np.empty(k, dtype=bool)
-    truncated = np.empty(k, dtype=bool)
-    infos = [None] * k
+def _step_all(envs, actions, obs, rewards, terminated, truncated) -> list:
+    """Steps envs[i] with actions[i], writing its outcome into row i of obs [k, obs_dim],
+    rewards, terminated and truncated [k]; the infos."""
+    infos = [None] * len(envs)
     for i, (env, a) in enumerate(zip(envs, actions)):
         o, rewards[i], terminated[i], truncated[i], infos[i] = env.step(a)
-        obs_out[i] = np.asarray(o).reshape(-1)
-    return rewards, terminated, truncated, infos
+        obs[i] = np.asarray(o).reshape(-1)
+    return infos
 
 
 def _reset(env, seed: Optional[int]) -> np.ndarray:
@@ -43,12 +41,12 @@ class LocalEnvs:
         self.envs = [make_env() for _ in range(n)]
         self.action_space = self.envs[0].action_space
         self.limits = [_own_limit(e) for e in self.envs]
-        self._obs = np.empty((n, obs_dim))
+        self._out = (np.empty((n, obs_dim)), np.empty(n), np.empty(n, dtype=bool), np.empty(n, dtype=bool))
 
     def step(self, actions: Sequence):
-        """Steps every env: (next obs [E, obs_dim] (reused by the next call), rewards,
-        terminated, truncated, infos)."""
-        return (self._obs, *_step_all(self.envs, actions, self._obs))
+        """Steps every env: (next obs [E, obs_dim], rewards, terminated, truncated,
+        infos); the arrays are reused by the next call."""
+        return (*self._out, _step_all(self.envs, actions, *self._out))
 
     def reset(self, indices: Sequence[int], seeds: Sequence[Optional[int]]) -> List[np.ndarray]:
         """Resets the envs at `indices` (each with its seed, or none); their observations."""
@@ -59,34 +57,58 @@ class LocalEnvs:
             e.close()
 
 
-def _worker(conn, make_env: Callable, n: int, obs_dim: int):
-    """A worker process: n envs, stepped and reset on the actor's word."""
+def _layout(n: int, obs_dim: int, act_width: int) -> dict:
+    """The step's arrays that the actor and its workers share: name -> (shape, dtype)."""
+    return {"act": ((n, act_width), np.float64), "obs": ((n, obs_dim), np.float64), "rew": ((n,), np.float64),
+            "term": ((n,), np.bool_), "trunc": ((n,), np.bool_)}
+
+
+def _views(buffers: dict, layout: dict) -> dict:
+    return {k: np.frombuffer(buffers[k], dtype=dtype).reshape(shape) for k, (shape, dtype) in layout.items()}
+
+
+def _action_reader(space) -> Callable:
+    """A row of the shared action array (float64) as the env takes it: a Discrete's
+    index, or a Box's values in its dtype and shape."""
+    if not hasattr(space, "dtype") or space.shape == ():
+        return lambda row: int(row[0])
+    dtype, shape = space.dtype, space.shape
+    return lambda row: row.astype(dtype).reshape(shape)
+
+
+# Worker messages, raw bytes: b"s" step (the actions are in the shared array), b"r" +
+# pickled [(env, seed)] reset, b"c" close. Answers: b"k" + the pickled result (a
+# step's infos, when asked for, else nothing), or b"e" + a traceback.
+def _worker(conn, make_env: Callable, lo: int, hi: int, buffers: dict, layout: dict, want_infos: bool):
+    """A worker process: envs lo..hi, stepped and reset on the actor's word."""
     try:
-        envs = [make_env() for _ in range(n)]
-        conn.send(("ready", envs[0].action_space, [_own_limit(e) for e in envs]))
+        envs = [make_env() for _ in range(hi - lo)]
+        conn.send((envs[0].action_space, [_own_limit(e) for e in envs]))
+        read = _action_reader(envs[0].action_space)
+        v = {k: a[lo:hi] for k, a in _views(buffers, layout).items()}
     except BaseException:
-        conn.send(("error", traceback.format_exc()))
+        conn.send(traceback.format_exc())
         return
-    obs = np.empty((n, obs_dim))
     while True:
         try:
-            cmd, arg = conn.recv()
+            msg = conn.recv_bytes()
         except (EOFError, KeyboardInterrupt):
             return
         try:
-            reply: object
-            if cmd == "step":
-                reply = (obs, *_step_all(envs, arg, obs))
-            elif cmd == "reset":
-                reply = [_reset(envs[i], s) for i, s in arg]
+            reply = b""
+            if msg == b"s":
+                infos = _step_all(envs, [read(r) for r in v["act"]], v["obs"], v["rew"], v["term"], v["trunc"])
+                reply = pickle.dumps(infos) if want_infos else b""
+            elif msg[:1] == b"r":
+                reply = pickle.dumps([_reset(envs[i], s) for i, s in pickle.loads(msg[1:])])
             else:
                 for e in envs:
                     e.close()
-                conn.send(("ok", None))
+                conn.send_bytes(b"k")
                 return
-            conn.send(("ok", reply))
+            conn.send_bytes(b"k" + reply)
         except BaseException:
-            conn.send(("error", traceback.format_exc()))
+            conn.send_bytes(b"e" + traceback.format_exc().encode())
 
 
 class EnvWorkerError(RuntimeError):
@@ -96,53 +118,72 @@ class EnvWorkerError(RuntimeError):
 class ProcessEnvs:
     """n instances of make_env() in `processes` worker processes (env i in worker
     i * processes // n), each stepping its share of one call's actions at the same time.
-    On Linux the workers are forked, so make_env may be any callable; elsewhere it must
-    pickle (a module-level function)."""
+    Actions, observations, rewards and flags go through shared memory (a step's
+    messages are a byte each way); a step's infos come back (pickled) only when
+    `infos` is true (the actor asks for them when the env's declaration computes its
+    vector reward from them). Actions are rows of `act_width` numbers: a Box's values,
+    or a Discrete's index. On Linux the workers are forked, so make_env may be any
+    callable; elsewhere it must pickle (a module-level function)."""
 
-    def __init__(self, make_env: Callable, n: int, obs_dim: int, processes: int):
+    def __init__(self, make_env: Callable, n: int, obs_dim: int, processes: int, act_width: int,
+                 infos: bool = True):
         if not 1 <= processes <= n:
             raise ValueError(f"env processes must be in 1..={n} (the envs); got {processes}")
         methods = mp.get_all_start_methods()
         ctx: Any = mp.get_context("fork" if "fork" in methods else "spawn")
+        layout = _layout(n, obs_dim, act_width)
+        buffers = {k: ctx.RawArray("b", int(np.prod(shape)) * np.dtype(dtype).itemsize)
+                   for k, (shape, dtype) in layout.items()}
+        self._v = _views(buffers, layout)
+        self.n = n
         bounds = [w * n // processes for w in range(processes + 1)]
         self.slices = [slice(bounds[w], bounds[w + 1]) for w in range(processes)]
         self.conns, self.procs = [], []
         for s in self.slices:
             mine, theirs = ctx.Pipe()
-            p = ctx.Process(target=_worker, args=(theirs, make_env, s.stop - s.start, obs_dim), daemon=True)
+            p = ctx.Process(target=_worker, daemon=True,
+                            args=(theirs, make_env, s.start, s.stop, buffers, layout, infos))
             p.start()
             theirs.close()
             self.conns.append(mine)
             self.procs.append(p)
         self.limits: List[Optional[int]] = []
         for c in self.conns:
-            _, space, limits = self._answer(c, "starting its envs")
-            self.action_space = space
+            try:
+                ready = c.recv()
+            except EOFError:
+                raise EnvWorkerError("an env worker process ended while starting its envs") from None
+            if isinstance(ready, str):
+                raise EnvWorkerError(f"an env worker process failed while starting its envs:\n{ready}")
+            self.action_space, limits = ready
             self.limits.extend(limits)
-        self._obs = np.empty((n, obs_dim))
-        self._rewards = np.empty(n)
-        self._terminated = np.empty(n, dtype=bool)
-        self._truncated = np.empty(n, dtype=bool)
 
-    def _answer(self, conn, what: str):
-        try:
-            msg = conn.recv()
-        except EOFError:
-            raise EnvWorkerError(f"an env worker process ended while {what}") from None
-        if msg[0] == "error":
-            raise EnvWorkerError(f"an env worker process failed while {what}:\n{msg[1]}")
-        return msg
+    def _answers(self, conns, what: str) -> list:
+        """Each worker's answer (None for an empty one), read from all of them before a
+        failure is raised, so that no answer is left behind for the next call."""
+        msgs: List[Optional[bytes]] = []
+        for c in conns:
+            try:
+                msgs.append(c.recv_bytes())
+            except EOFError:
+                msgs.append(None)
+        for m in msgs:
+            if m is None:
+                raise EnvWorkerError(f"an env worker process ended while {what}")
+            if m[:1] == b"e":
+                raise EnvWorkerError(f"an env worker process failed while {what}:\n{m[1:].decode()}")
+        return [pickle.loads(m[1:]) if m and len(m) > 1 else None for m in msgs]
 
     def step(self, actions: Sequence):
-        for c, s in zip(self.conns, self.slices):
-            c.send(("step", list(actions[s])))
+        """As LocalEnvs.step (infos are None unless asked for at construction)."""
+        v = self._v
+        v["act"][:] = np.asarray(actions, dtype=np.float64).reshape(self.n, -1)
+        for c in self.conns:
+            c.send_bytes(b"s")
         infos: list = []
-        for c, s in zip(self.conns, self.slices):
-            obs, rewards, terminated, truncated, inf = self._answer(c, "stepping")[1]
-            self._obs[s], self._rewards[s], self._terminated[s], self._truncated[s] = (
-                obs, rewards, terminated, truncated)
-            infos.extend(inf)
-        return self._obs, self._rewards, self._terminated, self._truncated, infos
+        for inf, s in zip(self._answers(self.conns, "stepping"), self.slices):
+            infos.extend(inf if inf is not None else [None] * (s.stop - s.start))
+        return v["obs"], v["rew"], v["term"], v["trunc"], infos
 
     def reset(self, indices: Sequence[int], seeds: Sequence[Optional[int]]) -> List[np.ndarray]:
         """As LocalEnvs.reset, one message to each worker that holds one of the envs."""
@@ -150,17 +191,17 @@ class ProcessEnvs:
         for c, s in zip(self.conns, self.slices):
             mine = [(i, seed) for i, seed in zip(indices, seeds) if s.start <= i < s.stop]
             if mine:
-                c.send(("reset", [(i - s.start, seed) for i, seed in mine]))
+                c.send_bytes(b"r" + pickle.dumps([(i - s.start, seed) for i, seed in mine]))
                 asked.append((c, mine))
         out: dict = {}
-        for c, mine in asked:
-            out.update(zip((i for i, _ in mine), self._answer(c, "resetting")[1]))
+        for (_, mine), obs in zip(asked, self._answers([c for c, _ in asked], "resetting")):
+            out.update(zip((i for i, _ in mine), obs))
         return [out[i] for i in indices]
 
     def close(self):
         for c in self.conns:
             try:
-                c.send(("close", None))
+                c.send_bytes(b"c")
             except (BrokenPipeError, OSError):
                 pass
         for p in self.procs:
