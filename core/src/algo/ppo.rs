@@ -237,16 +237,7 @@ impl Ppo {
             Some(h) => {
                 let nets = self.fast_nets();
                 let parallel = super::fused::threads_for(self.threads) > 1;
-                let grads = fast::step_grads(
-                    &nets,
-                    h,
-                    mb,
-                    &self.cfg,
-                    self.value_coef,
-                    self.c,
-                    parallel,
-                    totals,
-                )?;
+                let grads = fast::step_grads(&nets, h, mb, parallel, totals)?;
                 self.opt.step_host(h, grads)?
             }
             None => {
@@ -265,6 +256,9 @@ impl Ppo {
             log_std: self.agent.log_std_var(),
             critic: self.critic.layers().iter().collect(),
             head: self.agent.head(),
+            cfg: &self.cfg,
+            value_coef: self.value_coef,
+            c: self.c,
         }
     }
 

@@ -109,7 +109,7 @@ fn share(taken: bool, tie: bool) -> f32 {
     }
 }
 
-/// The networks a step trains, by reference.
+/// The networks a step trains, by reference, and the loss settings.
 pub(super) struct Nets<'a> {
     /// The agent's trunk then its μ layer.
     pub agent: Vec<&'a Linear>,
@@ -119,21 +119,22 @@ pub(super) struct Nets<'a> {
     pub critic: Vec<&'a Linear>,
     /// The agent's head bounds.
     pub head: HeadConfig,
+    /// Clip, entropy and value-clip settings.
+    pub cfg: &'a PpoConfig,
+    /// The value loss's weight.
+    pub value_coef: f64,
+    /// The critic's outputs.
+    pub c: usize,
 }
 
 /// One minibatch step's losses and the gradients of every variable of `nets`, into
 /// `totals` (the stats) and the host gradients [`crate::optim::Optimizer::step_host`] takes, at the weights
-/// of the optimiser's host state `h`. `c` is the critic's outputs; every action entry is
-/// continuous (the caller takes the reference path for a layout with a choice). With
+/// of the optimiser's host state `h`. Every action entry is continuous (the caller takes the reference path for a layout with a choice). With
 /// `parallel` the critic's forward and backward run on a second thread.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn step_grads(
     nets: &Nets,
     h: &HostState,
     mb: &Minibatch,
-    cfg: &PpoConfig,
-    value_coef: f64,
-    c: usize,
     parallel: bool,
     totals: &mut Totals,
 ) -> Result<Vec<(TensorId, Vec<f32>)>> {
@@ -142,17 +143,13 @@ pub(super) fn step_grads(
     std::thread::scope(|scope| {
         // The critic's part on a second thread while this one does the agent's: the
         // two share no sums, so the bits are the same either way.
-        let critic_job =
-            parallel.then(|| scope.spawn(|| value_grads(&critic, mb, cfg, value_coef, c)));
-        policy_and_grads(
-            nets, &agent, &critic, critic_job, h, mb, cfg, value_coef, c, totals,
-        )
+        let critic_job = parallel.then(|| scope.spawn(|| value_grads(&critic, mb, nets)));
+        policy_and_grads(nets, &agent, &critic, critic_job, h, mb, totals)
     })
 }
 
 /// The agent's part of [`step_grads`], the critic's from `critic_job` (or computed
 /// here), then the checks and every gradient.
-#[allow(clippy::too_many_arguments)]
 fn policy_and_grads<'s>(
     nets: &Nets,
     agent: &HostMlp,
@@ -160,12 +157,9 @@ fn policy_and_grads<'s>(
     critic_job: Option<std::thread::ScopedJoinHandle<'s, CriticGrads>>,
     h: &HostState,
     mb: &Minibatch,
-    cfg: &PpoConfig,
-    value_coef: f64,
-    c: usize,
     totals: &mut Totals,
 ) -> Result<Vec<(TensorId, Vec<f32>)>> {
-    let n = mb.n;
+    let (n, cfg) = (mb.n, nets.cfg);
     let na = agent.layers.last().map_or(0, |l| l.3);
     let raw_log_std = value(h, nets.log_std)?;
     // log σ = clamp(p, lo, hi); candle's clamp is max(p, lo) then min(·, hi).
@@ -248,14 +242,14 @@ fn policy_and_grads<'s>(
         Some(job) => job
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic)),
-        None => value_grads(critic, mb, cfg, value_coef, c),
+        None => value_grads(critic, mb, nets),
     };
     let policy_loss = policy_loss * inv_n as f64;
     let pl = check_finite("policy_loss", policy_loss as f32)?;
     let vl = check_finite("value_loss", value_loss as f32)?;
     check_finite(
         "loss",
-        (policy_loss + value_coef * value_loss - beta * entropy) as f32,
+        (policy_loss + nets.value_coef * value_loss - beta * entropy) as f32,
     )?;
 
     let mut grads = Vec::with_capacity(2 * (nets.agent.len() + nets.critic.len()) + 1);
@@ -285,17 +279,11 @@ fn policy_and_grads<'s>(
 type CriticGrads = (Vec<(Vec<f32>, Vec<f32>)>, f64);
 
 /// The critic's part of [`step_grads`]: V [n, c], its loss and its gradients.
-fn value_grads(
-    critic: &HostMlp,
-    mb: &Minibatch,
-    cfg: &PpoConfig,
-    value_coef: f64,
-    c: usize,
-) -> CriticGrads {
-    let n = mb.n;
+fn value_grads(critic: &HostMlp, mb: &Minibatch, nets: &Nets) -> CriticGrads {
+    let (n, c, cfg) = (mb.n, nets.c, nets.cfg);
     let c_acts = critic.forward(&mb.obs, n);
     let v = &c_acts[c_acts.len() - 1];
-    let scale = (2.0 * value_coef / (n * c) as f64) as f32;
+    let scale = (2.0 * nets.value_coef / (n * c) as f64) as f32;
     let mut dv = vec![0.0f32; n * c];
     let mut value_loss = 0.0f64;
     for e in 0..n * c {

@@ -212,17 +212,7 @@ fn step_grads(ppo: &Ppo, mb: &Minibatch, path: GradPath) -> (Vec<(String, Vec<f3
     let g = match path {
         GradPath::Fast => {
             let (nets, h) = (ppo.fast_nets(), ppo.opt.host_state().unwrap());
-            let grads = fast::step_grads(
-                &nets,
-                &h,
-                mb,
-                &ppo.cfg,
-                ppo.value_coef,
-                ppo.c,
-                false,
-                &mut totals,
-            )
-            .unwrap();
+            let grads = fast::step_grads(&nets, &h, mb, false, &mut totals).unwrap();
             assert_eq!(grads.len(), vars.len(), "one gradient per variable");
             vars.iter()
                 .map(|(name, v)| {
