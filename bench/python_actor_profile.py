@@ -14,13 +14,10 @@ the Python-heavy stages are overstated; the rates are bench/python_actor_speed.p
 """
 import argparse
 import cProfile
-import os
 import pstats
-import socket
-import subprocess
-import tempfile
 import time
 
+import reacher_learner  # bench/, beside this script
 from saver_actor import Actor, Connection
 from saver_actor.examples import reacher
 
@@ -33,16 +30,8 @@ ap.add_argument("--env-processes", type=int, default=0, help="the actor's env wo
 args = ap.parse_args()
 make_env, decl = reacher()
 
-tmp = tempfile.mkdtemp(prefix="saver-profile-")
-cfg = os.path.join(tmp, "reacher.toml")
-open(cfg, "w").write("max_episode_steps = 50\n" + decl.toml())
-with socket.socket() as s:
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-learner = subprocess.Popen([args.saver, "learner", "--config", cfg, "--actors", "1", "--steps", str(args.steps),
-                            "--out", os.path.join(tmp, "run"), "--exit-when-done", "--listen", f"127.0.0.1:{port}"],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-actor = Actor(make_env, decl, Connection(f"http://127.0.0.1:{port}"), n_envs=args.envs, give_up=30,
+learner, url = reacher_learner.start(args.saver, decl, 1, args.steps, "saver-profile-")
+actor = Actor(make_env, decl, Connection(url), n_envs=args.envs, give_up=30,
               log=lambda m: None, env_processes=args.env_processes)
 prof = cProfile.Profile()
 cpu0, wall0 = time.process_time(), time.perf_counter()

@@ -17,13 +17,10 @@
 """
 import argparse
 import multiprocessing as mp
-import os
-import socket
-import subprocess
-import tempfile
 import time
 
 import numpy as np
+import reacher_learner  # bench/, beside this script
 from saver_actor import Actor, Connection
 from saver_actor.examples import reacher
 
@@ -65,19 +62,11 @@ def act(url, n_envs, out):
 
 bare = bare_rate(args.envs, args.steps, lambda rng, shape: np.clip(rng.standard_normal(shape), -1, 1))
 uniform = bare_rate(args.envs, args.steps, lambda rng, shape: rng.uniform(-1, 1, shape))
-tmp = tempfile.mkdtemp(prefix="saver-speed-")
-cfg = os.path.join(tmp, "reacher.toml")
-open(cfg, "w").write("max_episode_steps = 50\n" + decl.toml())
-with socket.socket() as s:
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-learner = subprocess.Popen([args.saver, "learner", "--config", cfg, "--actors", str(args.actors),
-                            "--steps", str(args.steps), "--out", os.path.join(tmp, "run"), "--exit-when-done",
-                            "--listen", f"127.0.0.1:{port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+learner, url = reacher_learner.start(args.saver, decl, args.actors, args.steps, "saver-speed-")
 try:
     ctx = mp.get_context("fork")
     out = ctx.Queue()
-    procs = [ctx.Process(target=act, args=(f"http://127.0.0.1:{port}", args.envs // args.actors, out))
+    procs = [ctx.Process(target=act, args=(url, args.envs // args.actors, out))
              for _ in range(args.actors)]
     for p in procs:
         p.start()
