@@ -20,7 +20,7 @@ from threadpoolctl import threadpool_limits
 
 from ._proto import saver_pb2 as pb
 from ._proto import saver_pb2_grpc as pb_grpc
-from .env import ActionMap, EnvDecl, EnvError
+from .env import EnvDecl, EnvError
 from .envset import LocalEnvs, ProcessEnvs
 from .policy import policy_for
 
@@ -210,10 +210,9 @@ class Actor:
         self.give_up, self.log = give_up, log
         # env_processes > 0: the envs step in that many worker processes at once.
         # (A step's infos cross to the actor only when the declaration's vector reward reads them.)
-        self.envs = (ProcessEnvs(make_env, n_envs, decl.obs_dim, env_processes, decl.env_action_width,
+        self.envs = (ProcessEnvs(make_env, n_envs, decl.obs_dim, env_processes, decl.continuous, decl.action_dim,
                                  infos=decl.vector_reward is not None) if env_processes > 0
-                     else LocalEnvs(make_env, n_envs, decl.obs_dim))
-        self.actions = ActionMap(decl.continuous, decl.action_dim, self.envs.action_space)
+                     else LocalEnvs(make_env, n_envs, decl.obs_dim, decl.continuous, decl.action_dim))
         self.stop = threading.Event()
         self.summary = Summary()
 
@@ -315,9 +314,8 @@ class Actor:
             o_all[:, t] = obs
             actions, payload = policy.act(o_all[:, t], rng)
             act_all[:, t], pay_all[:, t] = actions, payload
-            env_actions = self.actions(actions)
             t0 = time.perf_counter()
-            nxt, rewards, terminated, truncated, infos = self.envs.step(env_actions)
+            nxt, rewards, terminated, truncated, infos = self.envs.step(actions)
             env_time += time.perf_counter() - t0
             # Bounds are checked for the whole rollout below (before anything is sent).
             delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False, complete=complete)

@@ -137,12 +137,6 @@ class EnvDecl:
     def action_dim(self) -> int:
         return self.continuous + self.choices
 
-    @property
-    def env_action_width(self) -> int:
-        """Numbers in one env action as ActionMap makes it: a choice's index, or the
-        continuous values."""
-        return 1 if self.choices else self.continuous
-
     @classmethod
     def for_env(cls, env, name: str, aligned, max_change: float, obs_low=None, obs_high=None, **kw) -> "EnvDecl":
         """A declaration with the action layout and (where finite) the observation bounds

@@ -14,6 +14,8 @@ from typing import Any, Callable, List, Optional, Sequence
 
 import numpy as np
 
+from .env import ActionMap
+
 
 def _own_limit(env) -> Optional[int]:
     return getattr(getattr(env, "spec", None), "max_episode_steps", None)
@@ -35,18 +37,21 @@ def _reset(env, seed: Optional[int]) -> np.ndarray:
 
 
 class LocalEnvs:
-    """n instances of make_env() in this process."""
+    """n instances of make_env() in this process, taking the agent's actions of
+    `continuous` values then `action_dim - continuous` one-hot choice entries."""
 
-    def __init__(self, make_env: Callable, n: int, obs_dim: int):
+    def __init__(self, make_env: Callable, n: int, obs_dim: int, continuous: int, action_dim: int):
         self.envs = [make_env() for _ in range(n)]
         self.action_space = self.envs[0].action_space
         self.limits = [_own_limit(e) for e in self.envs]
+        self._map = ActionMap(continuous, action_dim, self.action_space)
         self._out = (np.empty((n, obs_dim)), np.empty(n), np.empty(n, dtype=bool), np.empty(n, dtype=bool))
 
-    def step(self, actions: Sequence):
-        """Steps every env: (next obs [E, obs_dim], rewards, terminated, truncated,
-        infos); the arrays are reused by the next call."""
-        return (*self._out, _step_all(self.envs, actions, *self._out))
+    def step(self, actions: np.ndarray):
+        """Steps every env with the agent's actions [E, action_dim] (as the env takes
+        them: ActionMap): (next obs [E, obs_dim], rewards, terminated, truncated, infos);
+        the arrays are reused by the next call."""
+        return (*self._out, _step_all(self.envs, self._map(np.asarray(actions)), *self._out))
 
     def reset(self, indices: Sequence[int], seeds: Sequence[Optional[int]]) -> List[np.ndarray]:
         """Resets the envs at `indices` (each with its seed, or none); their observations."""
@@ -57,9 +62,9 @@ class LocalEnvs:
             e.close()
 
 
-def _layout(n: int, obs_dim: int, act_width: int) -> dict:
+def _layout(n: int, obs_dim: int, action_dim: int) -> dict:
     """The step's arrays that the actor and its workers share: name -> (shape, dtype)."""
-    return {"act": ((n, act_width), np.float64), "obs": ((n, obs_dim), np.float64), "rew": ((n,), np.float64),
+    return {"act": ((n, action_dim), np.float32), "obs": ((n, obs_dim), np.float64), "rew": ((n,), np.float64),
             "term": ((n,), np.bool_), "trunc": ((n,), np.bool_)}
 
 
@@ -67,24 +72,16 @@ def _views(buffers: dict, layout: dict) -> dict:
     return {k: np.frombuffer(buffers[k], dtype=dtype).reshape(shape) for k, (shape, dtype) in layout.items()}
 
 
-def _action_reader(space) -> Callable:
-    """A row of the shared action array (float64) as the env takes it: a Discrete's
-    index, or a Box's values in its dtype and shape."""
-    if not hasattr(space, "dtype") or space.shape == ():
-        return lambda row: int(row[0])
-    dtype, shape = space.dtype, space.shape
-    return lambda row: row.astype(dtype).reshape(shape)
-
-
 # Worker messages, raw bytes: b"s" step (the actions are in the shared array), b"r" +
 # pickled [(env, seed)] reset, b"c" close. Answers: b"k" + the pickled result (a
 # step's infos, when asked for, else nothing), or b"e" + a traceback.
-def _worker(conn, make_env: Callable, lo: int, hi: int, buffers: dict, layout: dict, want_infos: bool):
+def _worker(conn, make_env: Callable, lo: int, hi: int, buffers: dict, layout: dict, continuous: int,
+            want_infos: bool):
     """A worker process: envs lo..hi, stepped and reset on the actor's word."""
     try:
         envs = [make_env() for _ in range(hi - lo)]
         conn.send((envs[0].action_space, [_own_limit(e) for e in envs]))
-        read = _action_reader(envs[0].action_space)
+        to_env = ActionMap(continuous, layout["act"][0][1], envs[0].action_space)
         v = {k: a[lo:hi] for k, a in _views(buffers, layout).items()}
     except BaseException:
         conn.send(traceback.format_exc())
@@ -97,7 +94,7 @@ def _worker(conn, make_env: Callable, lo: int, hi: int, buffers: dict, layout: d
         try:
             reply = b""
             if msg == b"s":
-                infos = _step_all(envs, [read(r) for r in v["act"]], v["obs"], v["rew"], v["term"], v["trunc"])
+                infos = _step_all(envs, to_env(v["act"]), v["obs"], v["rew"], v["term"], v["trunc"])
                 reply = pickle.dumps(infos) if want_infos else b""
             elif msg[:1] == b"r":
                 reply = pickle.dumps([_reset(envs[i], s) for i, s in pickle.loads(msg[1:])])
@@ -118,20 +115,20 @@ class EnvWorkerError(RuntimeError):
 class ProcessEnvs:
     """n instances of make_env() in `processes` worker processes (env i in worker
     i * processes // n), each stepping its share of one call's actions at the same time.
-    Actions, observations, rewards and flags go through shared memory (a step's
-    messages are a byte each way); a step's infos come back (pickled) only when
-    `infos` is true (the actor asks for them when the env's declaration computes its
-    vector reward from them). Actions are rows of `act_width` numbers: a Box's values,
-    or a Discrete's index. On Linux the workers are forked, so make_env may be any
+    The agent's actions (as LocalEnvs takes them; each worker maps its own rows to the
+    env's), observations, rewards and flags go through shared memory (a step's messages
+    are a byte each way); a step's infos come back (pickled) only when `infos` is true
+    (the actor asks for them when the env's declaration computes its vector reward from
+    them). On Linux the workers are forked, so make_env may be any
     callable; elsewhere it must pickle (a module-level function)."""
 
-    def __init__(self, make_env: Callable, n: int, obs_dim: int, processes: int, act_width: int,
-                 infos: bool = True):
+    def __init__(self, make_env: Callable, n: int, obs_dim: int, processes: int, continuous: int,
+                 action_dim: int, infos: bool = True):
         if not 1 <= processes <= n:
             raise ValueError(f"env processes must be in 1..={n} (the envs); got {processes}")
         methods = mp.get_all_start_methods()
         ctx: Any = mp.get_context("fork" if "fork" in methods else "spawn")
-        layout = _layout(n, obs_dim, act_width)
+        layout = _layout(n, obs_dim, action_dim)
         buffers = {k: ctx.RawArray("b", int(np.prod(shape)) * np.dtype(dtype).itemsize)
                    for k, (shape, dtype) in layout.items()}
         self._v = _views(buffers, layout)
@@ -142,7 +139,7 @@ class ProcessEnvs:
         for s in self.slices:
             mine, theirs = ctx.Pipe()
             p = ctx.Process(target=_worker, daemon=True,
-                            args=(theirs, make_env, s.start, s.stop, buffers, layout, infos))
+                            args=(theirs, make_env, s.start, s.stop, buffers, layout, continuous, infos))
             p.start()
             theirs.close()
             self.conns.append(mine)
@@ -174,10 +171,10 @@ class ProcessEnvs:
                 raise EnvWorkerError(f"an env worker process failed while {what}:\n{m[1:].decode()}")
         return [pickle.loads(m[1:]) if m and len(m) > 1 else None for m in msgs]
 
-    def step(self, actions: Sequence):
+    def step(self, actions: np.ndarray):
         """As LocalEnvs.step (infos are None unless asked for at construction)."""
         v = self._v
-        v["act"][:] = np.asarray(actions, dtype=np.float64).reshape(self.n, -1)
+        v["act"][:] = actions
         for c in self.conns:
             c.send_bytes(b"s")
         infos: list = []

@@ -396,7 +396,7 @@ def test_env_worker_processes_step_as_the_actor_does():
     from saver_actor.examples import pointmass
 
     make_env, decl = pointmass()
-    local, workers = LocalEnvs(make_env, 5, decl.obs_dim), ProcessEnvs(make_env, 5, decl.obs_dim, 3, 2)
+    local, workers = LocalEnvs(make_env, 5, decl.obs_dim, 2, 2), ProcessEnvs(make_env, 5, decl.obs_dim, 3, 2, 2)
     try:
         assert workers.limits == local.limits and workers.action_space == local.action_space
         seeds = [11, 12, 13, 14, 15]
@@ -417,23 +417,23 @@ def test_env_worker_processes_step_as_the_actor_does():
         local.close()
         workers.close()
     try:
-        ProcessEnvs(make_env, 2, decl.obs_dim, 3, 2)
+        ProcessEnvs(make_env, 2, decl.obs_dim, 3, 2, 2)
         raise AssertionError("3 processes for 2 envs were accepted")
     except ValueError as e:
         assert "1..=2" in str(e), e
-    # A Discrete space's index crosses the shared action array as a number and reaches
-    # the env as an int; infos come back only when asked for.
+    # A choice crosses the shared action array as the agent's one-hot and reaches a
+    # Discrete env as its index, an int; infos come back only when asked for.
     for want in (True, False):
-        picks = ProcessEnvs(_Picks, 3, 1, 2, 1, infos=want)
+        picks = ProcessEnvs(_Picks, 3, 1, 2, 0, 3, infos=want)
         try:
             picks.reset([0, 1, 2], [0, 0, 0])
-            obs, rew, term, _, infos = picks.step([2, 0, 1])
+            obs, rew, term, _, infos = picks.step(np.eye(3, dtype=np.float32)[[2, 0, 1]])
             assert obs[:, 0].tolist() == [2.0, 0.0, 1.0] and rew.tolist() == [1.0, 0.0, 0.5], (obs, rew)
             assert term.tolist() == [True, False, False], term
             assert infos == ([{"picked": 2}, {"picked": 0}, {"picked": 1}] if want else [None] * 3), infos
         finally:
             picks.close()
-    broken = ProcessEnvs(_Breaks, 2, 2, 2, 2)
+    broken = ProcessEnvs(_Breaks, 2, 2, 2, 2, 2)
     try:
         broken.reset([0, 1], [0, 1])
         broken.step([np.zeros(2, np.float32)] * 2)
