@@ -35,44 +35,46 @@ def reacher(success_radius: float = 0.02, velocity_scale: float = 0.1):
 
 
 class PointMass(gym.Env):
-    """A point mass with inertia in the plane, pushed by a bounded force towards a goal
-    that moves each episode: the second inertial goal-reaching env SAVER is measured on
-    (results/README.md), numpy only.
+    """A point mass with inertia, pushed by a bounded force towards a goal that moves
+    each episode: the second inertial goal-reaching env SAVER is measured on
+    (results/README.md), numpy only; `n` coordinates (2 by default, the plane).
 
-    obs = position p (2), velocity v (2), goal g (2). Each step (dt = 0.1):
-    v' = (1 - drag)·v + accel·dt·a, p' = p + dt·v', with a in [-1, 1]^2; a wall at
+    obs = position p (n), velocity v (n), goal g (n). Each step (dt = 0.1):
+    v' = (1 - drag)·v + accel·dt·a, p' = p + dt·v', with a in [-1, 1]^n; a wall at
     +-1 stops the coordinate that hits it (p clipped, that v entry set to 0). Reset:
-    p, g ~ U(-0.9, 0.9)^2 at least 0.5 apart (L-inf), v = 0. The episode ends at 200
-    steps, or as a success when |p - g| < radius in both coordinates. From rest one
+    p, g ~ U(-0.9, 0.9)^n at least 0.5 apart (L-inf), v = 0. The episode ends at 200
+    steps, or as a success when |p - g| < radius in every coordinate. From rest one
     step's action moves p by accel·dt² = 0.01 per unit, while a moving mass drifts by up
     to dt·v_max = 0.2: as in Reacher, one step's position change is mostly velocity."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(self, drag: float = 0.05, accel: float = 1.0, radius: float = 0.05, max_steps: int = 200,
-                 render_mode=None):
-        self.drag, self.accel, self.radius, self.max_steps = drag, accel, radius, max_steps
+                 render_mode=None, n: int = 2):
+        self.drag, self.accel, self.radius, self.max_steps, self.n = drag, accel, radius, max_steps, n
         self.render_mode = render_mode
-        self.v_max = accel * 0.1 / drag  # the terminal speed of a constant push of 1: 2
-        high = np.array([1.0, 1.0, self.v_max, self.v_max, 1.0, 1.0])
+        self.v_max = accel * 0.1 / drag  # the terminal speed of a constant push of 1 (2 by default)
+        high = np.concatenate([np.ones(n), np.full(n, self.v_max), np.ones(n)])
         self.observation_space = gym.spaces.Box(-high, high, dtype=np.float64)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
-        self._state = np.zeros(6)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (n,), dtype=np.float32)
+        self._state = np.zeros(3 * n)
         self._t = 0
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
+        n = self.n
         while True:
-            p, g = self.np_random.uniform(-0.9, 0.9, 2), self.np_random.uniform(-0.9, 0.9, 2)
+            p, g = self.np_random.uniform(-0.9, 0.9, n), self.np_random.uniform(-0.9, 0.9, n)
             if np.max(np.abs(p - g)) >= 0.5:
                 break
-        self._state = np.concatenate([p, np.zeros(2), g])
+        self._state = np.concatenate([p, np.zeros(n), g])
         self._t = 0
         return self._state.copy(), {}
 
     def step(self, action):
+        n = self.n
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        p, v, g = self._state[0:2], self._state[2:4], self._state[4:6]
+        p, v, g = self._state[0:n], self._state[n:2 * n], self._state[2 * n:3 * n]
         v = (1.0 - self.drag) * v + self.accel * 0.1 * a
         p = p + 0.1 * v
         wall = np.abs(p) > 1.0
@@ -92,7 +94,8 @@ class PointMass(gym.Env):
         def pixel(x):
             return np.clip(((np.asarray(x) + 1.0) * 0.5 * (size - 1)).round().astype(int), 0, size - 1)
 
-        g, r = self._state[4:6], max(self.radius, 2.0 / size)
+        n = self.n  # the first two coordinates, seen from above
+        g, r = self._state[2 * n:2 * n + 2], max(self.radius, 2.0 / size)
         (x0, y0), (x1, y1) = pixel(g - r), pixel(g + r)
         frame[y0:y1 + 1, x0:x1 + 1] = (40, 160, 60)
         x, y = pixel(self._state[0:2])
@@ -100,16 +103,29 @@ class PointMass(gym.Env):
         return frame
 
 
+def _pointmass_decl(name: str, env: PointMass):
+    n, v = env.n, env.v_max
+    return EnvDecl(name=name, obs_low=[-1] * n + [-v] * n + [-1] * n, obs_high=[1] * n + [v] * n + [1] * n,
+                   aligned=slice(0, n), goal=slice(2 * n, 3 * n), max_change=0.1 * v, continuous=n,
+                   success_radius=env.radius)
+
+
 def pointmass(radius: float = 0.05):
-    """The inertial point mass (PointMass): p = obs[0:2], goal g = obs[4:6], success
-    within `radius` of g in both coordinates. Velocities stay within the terminal
-    speed accel·dt/drag = 2, so one step moves p by at most dt·2 = 0.2."""
+    """The inertial point mass (PointMass) in the plane: p = obs[0:2], goal g = obs[4:6],
+    success within `radius` of g in both coordinates. Velocities stay within the
+    terminal speed accel·dt/drag = 2, so one step moves p by at most dt·2 = 0.2."""
     def make_env(render_mode=None):
         return PointMass(radius=radius, render_mode=render_mode)
 
-    env = PointMass(radius=radius)
-    v = env.v_max
-    decl = EnvDecl(name="pointmass", obs_low=[-1, -1, -v, -v, -1, -1], obs_high=[1, 1, v, v, 1, 1],
-                   aligned=slice(0, 2), goal=slice(4, 6), max_change=0.1 * v, continuous=2,
-                   success_radius=radius)
-    return make_env, decl
+    return make_env, _pointmass_decl("pointmass", PointMass(radius=radius))
+
+
+def pointmass3(radius: float = 0.05):
+    """A check env that no default was tuned on: the point mass in three coordinates
+    with twice the drag and 1.5 times the force (terminal speed 1.5, so the mass stops
+    within ~10 steps of letting go, where the plane's takes ~20). p = obs[0:3], goal
+    g = obs[6:9], success within `radius` in every coordinate."""
+    def make(render_mode=None):
+        return PointMass(drag=0.1, accel=1.5, radius=radius, render_mode=render_mode, n=3)
+
+    return make, _pointmass_decl("pointmass3", make())

@@ -468,6 +468,30 @@ def test_env_worker_processes_step_as_the_actor_does():
     print(f"  {len(rows[0])} metrics rows equal with and without env worker processes")
 
 
+def test_the_three_coordinate_point_mass_follows_its_equations():
+    """pointmass3 (drag 0.1, accel 1.5, dt 0.1), by hand: from rest a push a gives
+    v' = 0.15·a and p' = p + 0.015·a; letting go keeps 0.9 of v, so p'' = p' + 0.09·0.15·a
+    (= 0.0135·a); a coordinate that hits the wall at 1 stops there. Its declaration
+    reads three progress rewards, |p - g| - |p' - g| each."""
+    from saver_actor.examples import pointmass3
+    make_env, decl = pointmass3()
+    assert (decl.obs_dim, decl.continuous) == (9, 3) and abs(decl.max_change - 0.15) < 1e-12, decl
+    env = make_env()
+    o, _ = env.reset(seed=3)
+    p, g = o[0:3].copy(), o[6:9]
+    a = np.array([1.0, -0.5, 0.2])
+    o1, r, term, trunc, _ = env.step(a.astype(np.float32))
+    assert np.allclose(o1[3:6], 0.15 * a, atol=1e-7) and np.allclose(o1[0:3], p + 0.015 * a, atol=1e-7), o1
+    o2, *_ = env.step(np.zeros(3, np.float32))
+    assert np.allclose(o2[0:3], p + 0.015 * a + 0.0135 * a, atol=1e-7), o2
+    assert r == -float(np.abs(o1[0:3] - g).sum()) and not term and not trunc
+    _, vec, success = decl.outcome(o1[None], o2[None], [0.0], [False], [{}])
+    assert np.allclose(vec[0], np.abs(o1[0:3] - g) - np.abs(o2[0:3] - g), atol=1e-6) and not success[0]
+    env._state[0:6] = [0.999, 0, 0, 1.0, 0, 0]  # at the wall in x, moving out
+    o3, *_ = env.step(np.array([1, 0, 0], np.float32))
+    assert o3[0] == 1.0 and o3[3] == 0.0, o3
+
+
 def test_progress_completed_at_success():
     """The progress completed at success on the point mass (g = (0.5, 0.5), radius 0.05,
     max_change 0.2), by hand: a step from (0.42, 0.44) to (0.47, 0.46) ends inside the
