@@ -94,8 +94,9 @@ pub fn gae(
 
 /// V-trace (Espeholt et al. 2018, IMPALA; docs/ALGORITHM.md §16) of `n_traj` trajectories
 /// acted by a behaviour policy μ, for a learner whose policy is π, each of the `c`
-/// reward components on its own with one ratio per step: `rho` and `cs` hold the clipped
-/// ratios ρ_t = min(ρ̄, π/μ) and c_t = min(c̄, π/μ) ([n_traj, n_steps]). Returns the
+/// reward components on its own: `rho` and `cs` hold the clipped ratios
+/// ρ_t = min(ρ̄, π/μ) and c_t = min(c̄, π/μ), one a step ([n_traj, n_steps]) or one a
+/// step and component (the layout of `rewards`: per-coordinate V-trace). Returns the
 /// critic targets v_t and the policy-gradient advantages ρ_t·(r_t + γ·v_next − V(o_t)),
 /// each with the layout of `rewards`:
 ///   v_t − V(o_t) = ρ_t·δ_t + γ·c_t·(1 − done_t)·(v_(t+1) − V(o_(t+1))),
@@ -120,8 +121,10 @@ pub fn vtrace(
     let n_traj = dones.len() / n_steps;
     debug_assert_eq!(rewards.len(), n_traj * n_steps * c);
     debug_assert_eq!(values.len(), rewards.len());
-    debug_assert_eq!(rho.len(), dones.len());
-    debug_assert_eq!(cs.len(), dones.len());
+    // One ratio a step, or one a step and coordinate.
+    let per_coordinate = rho.len() != dones.len();
+    debug_assert!(rho.len() == dones.len() || rho.len() == rewards.len());
+    debug_assert_eq!(cs.len(), rho.len());
     let mut targets = vec![0.0f32; rewards.len()];
     let mut advantages = vec![0.0f32; rewards.len()];
     for e in 0..n_traj {
@@ -138,12 +141,13 @@ pub fn vtrace(
                     (true, Some(v)) => (v[row + j], v[row + j]),
                     (true, None) => (0.0, 0.0),
                 };
+                let r = if per_coordinate { row + j } else { i };
                 let delta = rewards[row + j] + gamma * next_v - values[row + j];
-                let carry = if done { 0.0 } else { gamma * cs[i] * acc[j] };
-                acc[j] = rho[i] * delta + carry;
+                let carry = if done { 0.0 } else { gamma * cs[r] * acc[j] };
+                acc[j] = rho[r] * delta + carry;
                 targets[row + j] = values[row + j] + acc[j];
                 advantages[row + j] =
-                    rho[i] * (rewards[row + j] + gamma * next_target - values[row + j]);
+                    rho[r] * (rewards[row + j] + gamma * next_target - values[row + j]);
             }
         }
     }
@@ -294,6 +298,26 @@ mod tests {
         );
         assert_eq!(v, vec![3.5, 5.5, 5., 7., 10., 16.]);
         assert_eq!(a, vec![2.5, 4.5, 3., 5., 7., 13.]);
+        // Per coordinate: component 0 keeps the ratios above, component 1 has π/μ = 1 at
+        // every step, so it is the n-step return of component 1 alone:
+        //   v2 − V2 = 13, v1 − V1 = 3.5 + 0.5·13 = 10, v0 − V0 = 2 + 0.5·10 = 7
+        //   v = (·, 8), (·, 12), (·, 16); advantages r_t + γ·v_(t+1) − V_t = R_t − V_t:
+        //   (7, 10, 13); component 0 as before.
+        let (rho2, cs2) = ([1., 1., 0.5, 1., 1., 1.], [1., 1., 0.5, 1., 1., 1.]);
+        let (v, a) = vtrace(
+            &rewards,
+            &values,
+            &dones,
+            &[10., 20.],
+            None,
+            &rho2,
+            &cs2,
+            3,
+            2,
+            0.5,
+        );
+        assert_eq!(v, vec![3.5, 8., 5., 12., 10., 16.]);
+        assert_eq!(a, vec![2.5, 7., 3., 10., 7., 13.]);
         // Every ratio 1: the n-step returns and R − V, a timeout bootstrapped included.
         let ends = [0., 0., 4., 8., 0., 0.];
         let dones = [false, true, false];

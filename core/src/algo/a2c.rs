@@ -1,6 +1,7 @@
 //! A2C (docs/ALGORITHM.md §8): loss = mean(−log π(a|o)·A) + c_v·mean((V − R)²), A = R − V (no gradient),
 //! scalar reward = sum of the vector reward, shared trunk, entropy β = 0.
 
+use super::vtrace::shared_log_ratios;
 use super::{
     batch_returns, check_finite, matrix, policy_diagnostics, update_rows, Algorithm, UpdateStats,
 };
@@ -130,17 +131,10 @@ impl Algorithm for A2c {
             }
             Some(vt) => {
                 let log_pi = logp.detach().to_vec1::<f32>()?;
+                let log_ratio = shared_log_ratios(&self.layout, batch, &log_pi, &self.dev)?;
                 let values = value_all.detach().unsqueeze(1)?;
-                let corrected = vt.targets(
-                    batch,
-                    &self.layout,
-                    &rewards,
-                    &values,
-                    k,
-                    1,
-                    self.gamma,
-                    &log_pi,
-                )?;
+                let corrected =
+                    vt.targets(batch, &rewards, &values, k, 1, self.gamma, &log_ratio)?;
                 extra = corrected.stats;
                 (
                     Tensor::from_vec(corrected.targets, b, &self.dev)?,

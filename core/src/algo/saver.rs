@@ -16,7 +16,7 @@ use super::saver_signal::{noise_rank_delta, predicted_delta, SignalBatch};
 use super::{update_rows, Algorithm, UpdateStats};
 use crate::config::{DeltaTarget, RunConfig, SaverConfig};
 use crate::embedding::{cosine_embedding, EMBED_DIM};
-use crate::env::EnvLayout;
+use crate::env::{EnvLayout, Routing};
 use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
@@ -63,6 +63,8 @@ pub struct Saver {
     rng: SaverRng,
     /// Env layout.
     layout: EnvLayout,
+    /// Which part of an action moves which coordinate (per-coordinate V-trace).
+    routing: Routing,
     /// γ.
     gamma: f32,
     /// Bootstrap at the step limit.
@@ -156,6 +158,7 @@ impl Saver {
             opt,
             rng: rng_for(config.seed, streams::LEARNER),
             layout,
+            routing: config.env.routing(),
             gamma: config.gamma as f32,
             bootstrap_timeout: config.bootstrap_timeout,
             cfg: config.saver.clone(),

@@ -4,6 +4,7 @@
 
 use super::{behaviour_log_probs, bootstrap_and_ends};
 use crate::config::RunConfig;
+use crate::env::{EnvLayout, Routing};
 use crate::rollout::Batch;
 use crate::Result;
 use candle_core::Tensor;
@@ -48,28 +49,23 @@ impl Vtrace {
     }
 
     /// The critic targets and policy advantages ([B, c] each) of `rewards` ([B, c])
-    /// for a learner whose policy gives the batch's actions log-probabilities `log_pi`,
-    /// with `values` V at [`update_rows`]' rows ([rows, c]; `n_ends` timeouts), and the
-    /// ratio statistics ([`VTRACE_STATS`]).
+    /// for ratios whose logs are `log_ratio`: one a step ([B], [`shared_log_ratios`])
+    /// or one a step and coordinate ([B, c], [`coordinate_log_ratios`]), with
+    /// `values` V at [`update_rows`]' rows ([rows, c]; `n_ends` timeouts), and the
+    /// ratio statistics ([`VTRACE_STATS`]) over them all.
     #[allow(clippy::too_many_arguments)]
     pub fn targets(
         self,
         batch: &Batch,
-        layout: &crate::env::EnvLayout,
         rewards: &[f32],
         values: &Tensor,
         n_ends: usize,
         c: usize,
         gamma: f32,
-        log_pi: &[f32],
+        log_ratio: &[f32],
     ) -> Result<Corrected> {
         let b = batch.len();
-        let log_mu = behaviour_log_probs(layout, batch, values.device())?;
-        let ratio: Vec<f32> = log_pi
-            .iter()
-            .zip(&log_mu)
-            .map(|(p, m)| (p - m).exp())
-            .collect();
+        let ratio: Vec<f32> = log_ratio.iter().map(|l| l.exp()).collect();
         let rho: Vec<f32> = ratio.iter().map(|r| r.min(self.rho_bar)).collect();
         let cs: Vec<f32> = ratio
             .iter()
@@ -109,6 +105,105 @@ impl Vtrace {
             stats,
         })
     }
+}
+
+/// log π/μ of each step's whole action ([B]), for a learner whose policy gives the
+/// batch's actions log-probabilities `log_pi`: the one ratio of A2C, and of SAVER where
+/// the env does not say which part of an action moves which coordinate.
+pub fn shared_log_ratios(
+    layout: &EnvLayout,
+    batch: &Batch,
+    log_pi: &[f32],
+    dev: &candle_core::Device,
+) -> Result<Vec<f32>> {
+    let log_mu = behaviour_log_probs(layout, batch, dev)?;
+    Ok(log_pi.iter().zip(&log_mu).map(|(p, m)| p - m).collect())
+}
+
+/// log π/μ of what coordinate j saw of each step's action ([B, d], docs/ALGORITHM.md
+/// §16): the factors of the action that move coordinate j under `routing`, the
+/// learner's policy (`mu` [B, continuous + choices], `log_std` [B, continuous], host)
+/// against the behaviour's payload.
+/// - `Own`: continuous entry j's Gaussian factor;
+/// - `Pairs`: the pair's two entries' factors, for both of its coordinates;
+/// - `Choice`: where j was chosen, the step's factor times p'_j / p_j; where not,
+///   (1 − p'_j) / (1 − p_j), the odds that j stays where it is;
+/// - `Shared`: the whole action's, the same for every j.
+///
+/// With every factor 1 (on-policy) every ratio is exactly 1. Sums in f64.
+pub fn coordinate_log_ratios(
+    routing: Routing,
+    layout: &EnvLayout,
+    batch: &Batch,
+    mu: &[f32],
+    log_std: &[f32],
+) -> Result<Vec<f32>> {
+    let (b, c, k, d) = (
+        batch.len(),
+        layout.continuous,
+        layout.choices,
+        layout.aligned_dim,
+    );
+    let (m, a_dim) = (c + k, layout.action_dim());
+    let width = m + c;
+    if batch.payload.len() != b * width || mu.len() != b * m || log_std.len() != b * c {
+        return Err(crate::CoreError::Data(format!(
+            "per-coordinate ratios need μ ({m}) and log σ ({c}) a step from both policies; \
+             the batch has {} payload values for {b} steps",
+            batch.payload.len()
+        )));
+    }
+    let fits = match routing {
+        Routing::Shared => true,
+        Routing::Own => c == d,
+        Routing::Pairs => c == d && d.is_multiple_of(2),
+        Routing::Choice => k == d && c > 0,
+    };
+    if !fits {
+        return Err(crate::CoreError::Data(format!(
+            "routing {routing:?} does not fit a layout of {c} continuous entries, {k} choices \
+             and {d} coordinates"
+        )));
+    }
+    let mut out = vec![0f32; b * d];
+    let mut gauss = vec![0f64; c];
+    for i in 0..b {
+        let a = &batch.actions[i * a_dim..(i + 1) * a_dim];
+        let then = &batch.payload[i * width..(i + 1) * width];
+        let (mu_now, ls_now) = (&mu[i * m..(i + 1) * m], &log_std[i * c..(i + 1) * c]);
+        // log N(a; μ', σ') − log N(a; μ, σ) per continuous entry.
+        for (e, g) in gauss.iter_mut().enumerate() {
+            let half_z2 = |mean: f32, ls: f32| {
+                let z = (a[e] as f64 - mean as f64) / (ls as f64).exp();
+                0.5 * z * z + ls as f64
+            };
+            *g = half_z2(then[e], then[m + e]) - half_z2(mu_now[e], ls_now[e]);
+        }
+        let (p_now, p_then) = (softmax(&mu_now[c..]), softmax(&then[c..m]));
+        let pick = (0..k).find(|&j| a[c + j] > 0.5);
+        let choice = pick.map_or(0.0, |j| p_now[j].ln() - p_then[j].ln());
+        let row = &mut out[i * d..(i + 1) * d];
+        for (j, r) in row.iter_mut().enumerate() {
+            *r = match routing {
+                Routing::Shared => gauss.iter().sum::<f64>() + choice,
+                Routing::Own => gauss[j],
+                Routing::Pairs => gauss[j & !1] + gauss[j | 1],
+                Routing::Choice if pick == Some(j) => gauss.iter().sum::<f64>() + choice,
+                Routing::Choice => (-p_now[j]).ln_1p() - (-p_then[j]).ln_1p(),
+            } as f32;
+        }
+    }
+    Ok(out)
+}
+
+/// softmax of `logits` in f64.
+fn softmax(logits: &[f32]) -> Vec<f64> {
+    let max = logits
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, &l| m.max(l as f64));
+    let e: Vec<f64> = logits.iter().map(|&l| (l as f64 - max).exp()).collect();
+    let total: f64 = e.iter().sum();
+    e.into_iter().map(|x| x / total).collect()
 }
 
 #[cfg(test)]

@@ -25,14 +25,29 @@ pub struct Preset {
     pub fixed_episode_steps: Option<u32>,
     /// Where its goal is: `None` the origin, `Some(i)` observation entries i..i+d.
     pub goal_start: Option<usize>,
-    /// Whether continuous action dim j moves coordinate j alone (QRRL's vector variant).
-    pub actions_aligned: bool,
+    /// Which parts of an action move which coordinate of p.
+    pub routing: Routing,
     /// The paper's SAVER learning rate for it (a preset the paper did not run: angle's).
     pub paper_saver_lr: f64,
     /// The paper's A2C learning rate for it.
     pub paper_a2c_lr: f64,
     /// The paper's PCPN pretraining batches for it.
     pub paper_pretrain_batches: u64,
+}
+
+/// Which parts of an action move which coordinate of p (the aligned entries): what
+/// per-coordinate V-trace weighs coordinate j's step by (docs/ALGORITHM.md §16), and
+/// whether QRRL's vector variant may pair action dim j with coordinate j.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Routing {
+    /// Any entry may move any coordinate (arm, every custom env): one ratio a step.
+    Shared,
+    /// Continuous entry j moves coordinate j alone (point, bandit).
+    Own,
+    /// A pair's two entries (step, angle) move its two coordinates 2i, 2i+1 (angle).
+    Pairs,
+    /// The choice k picks the one coordinate that the continuous step moves (select).
+    Choice,
 }
 
 /// A d-cube's layout: the observation is p, `continuous` action entries, `choices`.
@@ -71,7 +86,7 @@ pub const PRESETS: [Preset; 5] = [
         make: |d, max_steps| Box::new(Angle::new(d, max_steps)),
         fixed_episode_steps: None,
         goal_start: None,
-        actions_aligned: false,
+        routing: Routing::Pairs,
         paper_saver_lr: 0.01,
         paper_a2c_lr: 0.0003,
         paper_pretrain_batches: 100_000,
@@ -86,7 +101,7 @@ pub const PRESETS: [Preset; 5] = [
         make: |d, max_steps| Box::new(Select::new(d, max_steps)),
         fixed_episode_steps: None,
         goal_start: None,
-        actions_aligned: false,
+        routing: Routing::Choice,
         paper_saver_lr: 0.01,
         paper_a2c_lr: 0.0001,
         paper_pretrain_batches: 10_000,
@@ -118,7 +133,7 @@ pub const PRESETS: [Preset; 5] = [
         make: |_, max_steps| Box::new(Arm::new(max_steps)),
         fixed_episode_steps: None,
         goal_start: Some(0),
-        actions_aligned: false,
+        routing: Routing::Shared,
         paper_saver_lr: 0.003,
         paper_a2c_lr: 0.0003,
         paper_pretrain_batches: 10_000,
@@ -140,7 +155,7 @@ pub const PRESETS: [Preset; 5] = [
         make: |_, max_steps| Box::new(Bandit::new(max_steps)),
         fixed_episode_steps: Some(1),
         goal_start: None,
-        actions_aligned: true,
+        routing: Routing::Own,
         // Not in the paper: angle's.
         paper_saver_lr: 0.01,
         paper_a2c_lr: 0.0003,
@@ -156,7 +171,7 @@ pub const PRESETS: [Preset; 5] = [
         make: |d, max_steps| Box::new(Point::new(d, max_steps)),
         fixed_episode_steps: None,
         goal_start: None,
-        actions_aligned: true,
+        routing: Routing::Own,
         // Not in the paper: angle's.
         paper_saver_lr: 0.01,
         paper_a2c_lr: 0.0003,

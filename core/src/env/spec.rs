@@ -3,7 +3,7 @@
 //! angle, select and arm are presets of it ([`EnvKind`]); a user's env is a spec of its
 //! own ([`EnvSpec::custom`]) whose actors bring the env itself.
 
-use super::preset::PRESETS;
+use super::preset::{Routing, PRESETS};
 use super::slack;
 use super::{Env, SuccessRule, SUCCESS_RADIUS};
 use crate::{CoreError, Result};
@@ -322,11 +322,17 @@ impl EnvSpec {
         self.preset
     }
 
+    /// Which parts of an action move which coordinate ([`Routing`]); a custom env
+    /// declares none, so it is [`Routing::Shared`].
+    pub fn routing(&self) -> Routing {
+        self.preset.map_or(Routing::Shared, |k| k.preset().routing)
+    }
+
     /// Whether continuous action dim j moves state-aligned coordinate j alone (point
     /// and the bandit), so that coordinate j's advantage can weigh action dim j (QRRL's
-    /// vector variant). Custom envs do not declare it yet.
+    /// vector variant).
     pub fn actions_aligned(&self) -> bool {
-        self.preset.is_some_and(|k| k.preset().actions_aligned)
+        self.routing() == Routing::Own
     }
 
     /// The name.

@@ -4,7 +4,9 @@
 //! traces decayed by the same λ).
 
 use super::{Forward, Saver};
+use crate::algo::vtrace::{coordinate_log_ratios, shared_log_ratios};
 use crate::algo::{batch_gae, batch_returns, matrix};
+use crate::env::Routing;
 use crate::nets::gaussian_log_prob;
 use crate::rollout::Batch;
 use crate::Result;
@@ -37,19 +39,32 @@ impl Saver {
             vtrace_stats: Vec::new(),
         };
         if let Some(vt) = self.vtrace {
-            let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
-            let log_pi = gaussian_log_prob(&self.layout, &fwd.mu, &fwd.log_std, &actions)?
-                .detach()
-                .to_vec1::<f32>()?;
+            // Each coordinate weighs its step by the part of the action that moves it,
+            // where the env says which part that is (§16); else one ratio a step.
+            let log_ratio = if self.routing == Routing::Shared {
+                let actions = matrix(&batch.actions, b, self.layout.action_dim(), &self.dev)?;
+                let log_pi = gaussian_log_prob(&self.layout, &fwd.mu, &fwd.log_std, &actions)?
+                    .detach()
+                    .to_vec1::<f32>()?;
+                shared_log_ratios(&self.layout, batch, &log_pi, &self.dev)?
+            } else {
+                let host = |t: &Tensor| -> Result<Vec<f32>> {
+                    Ok(t.narrow(0, 0, b)?
+                        .detach()
+                        .flatten_all()?
+                        .to_vec1::<f32>()?)
+                };
+                let (mu, log_std) = (host(&fwd.mu)?, host(&fwd.log_std)?);
+                coordinate_log_ratios(self.routing, &self.layout, batch, &mu, &log_std)?
+            };
             let corrected = vt.targets(
                 batch,
-                &self.layout,
                 &batch.vector_reward,
                 &v_all.detach(),
                 n_ends,
                 d,
                 self.gamma,
-                &log_pi,
+                &log_ratio,
             )?;
             return Ok(Targets {
                 returns: corrected.targets,

@@ -128,3 +128,97 @@ fn vtrace_is_refused_where_it_does_not_apply() {
         assert!(e.contains("vtrace") && e.contains(why), "{e}");
     }
 }
+
+/// A one-step batch on `layout` with action `a` and the behaviour's payload `then`.
+fn one_step(layout: &crate::env::EnvLayout, a: &[f32], then: &[f32]) -> Batch {
+    let mut b = random_batch(layout, 1, 1, 1, 0.8, vec![false]);
+    b.actions = a.to_vec();
+    b.payload = then.to_vec();
+    b
+}
+
+/// Per-coordinate log ratios by hand. The behaviour is μ = 0, σ = 1 (logits 0) and the
+/// step taken a_0 = 0.5, so the step's factor is log N(0.5; 0.5, 1) − log N(0.5; 0, 1)
+/// = 0.125.
+/// - select d = 3, choice 1, the learner's logits (ln 3, 0, ln 2): p' = (1/2, 1/6, 1/3)
+///   against 1/3 each. Chosen coordinate 1: 0.125 + ln((1/6)/(1/3)) = 0.125 − ln 2 =
+///   −0.5681472; coordinate 0: ln((1 − 1/2)/(2/3)) = ln 0.75 = −0.2876821; coordinate 2:
+///   ln((2/3)/(2/3)) = 0. Shared: −0.5681472 for all three.
+/// - angle d = 4, a = (0.5, 0, 0, 1), the learner's μ' = (0.5, 0, 0, 0) and log σ' =
+///   (0, 0, ln 2, 0): factors 0.125, 0, −ln 2 (a = 0 under σ' = 2: −ln 2 + 0) and 0.
+///   Pairs: (0.125, 0.125, −0.6931472, −0.6931472); own entry: (0.125, 0, −0.6931472,
+///   0); shared: −0.5681472.
+#[test]
+fn per_coordinate_ratios_by_hand() {
+    use super::coordinate_log_ratios;
+    use crate::env::Routing;
+    let close = |got: Vec<f32>, want: &[f32], what: &str| {
+        for (g, w) in got.iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "{what}: {got:?} against {want:?}");
+        }
+        assert_eq!(got.len(), want.len(), "{what}");
+    };
+    let select = EnvSpec::new(EnvKind::Select, 3).unwrap().layout();
+    let b = one_step(&select, &[0.5, 0., 1., 0.], &[0., 0., 0., 0., 0.]);
+    let mu = [0.5, 3f32.ln(), 0., 2f32.ln()];
+    let got = |r| coordinate_log_ratios(r, &select, &b, &mu, &[0.]).unwrap();
+    close(
+        got(Routing::Choice),
+        &[-0.2876821, -0.5681472, 0.],
+        "choice",
+    );
+    close(got(Routing::Shared), &[-0.5681472; 3], "select shared");
+    let angle = EnvSpec::new(EnvKind::Angle, 4).unwrap().layout();
+    let b = one_step(&angle, &[0.5, 0., 0., 1.], &[0.; 8]);
+    let (mu, ls) = ([0.5, 0., 0., 0.], [0., 0., 2f32.ln(), 0.]);
+    let got = |r| coordinate_log_ratios(r, &angle, &b, &mu, &ls).unwrap();
+    let ln2 = std::f32::consts::LN_2;
+    close(got(Routing::Pairs), &[0.125, 0.125, -ln2, -ln2], "pairs");
+    close(got(Routing::Own), &[0.125, 0., -ln2, 0.], "own");
+    close(got(Routing::Shared), &[0.125 - ln2; 4], "angle shared");
+    // A routing that does not fit the layout is an error, not a panic.
+    let e = coordinate_log_ratios(Routing::Choice, &angle, &b, &mu, &ls).unwrap_err();
+    assert!(e.to_string().contains("does not fit"), "{e}");
+}
+
+/// The shared routing's ratio is the learner's `shared_log_ratios` (candle's log-prob of
+/// the whole action against the payload's), on random select and angle batches.
+#[test]
+fn the_shared_routing_is_the_whole_actions_ratio() {
+    use super::{coordinate_log_ratios, shared_log_ratios};
+    for spec in [
+        EnvSpec::new(EnvKind::Select, 3).unwrap(),
+        EnvSpec::new(EnvKind::Angle, 4).unwrap(),
+    ] {
+        let config = crate::algo::recommended(&spec, Algo::Saver, 1);
+        let (l, b) = (spec.layout(), batch(&config, 0.3));
+        let (m, c) = (l.mu_dim(), l.continuous);
+        let rows = b.len();
+        let now = batch(&config, 0.0).payload;
+        let (mu, ls): (Vec<f32>, Vec<f32>) = (
+            now.chunks(m + c).flat_map(|r| r[..m].to_vec()).collect(),
+            now.chunks(m + c).flat_map(|r| r[m..].to_vec()).collect(),
+        );
+        let t = |v: &[f32], w| Tensor::from_slice(v, (rows, w), &Device::Cpu).unwrap();
+        let actions = t(&b.actions, l.action_dim());
+        let log_pi = crate::nets::gaussian_log_prob(&l, &t(&mu, m), &t(&ls, c), &actions)
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        let want = shared_log_ratios(&l, &b, &log_pi, &Device::Cpu).unwrap();
+        let got = coordinate_log_ratios(crate::env::Routing::Shared, &l, &b, &mu, &ls).unwrap();
+        let d = l.aligned_dim;
+        for (i, w) in want.iter().enumerate() {
+            for g in &got[i * d..(i + 1) * d] {
+                assert!(
+                    (g - w).abs() < 1e-4 * w.abs().max(1.0),
+                    "{spec:?} step {i}: {g} against {w}"
+                );
+            }
+        }
+        assert!(
+            want.iter().any(|w| w.abs() > 0.1),
+            "the batch is off-policy"
+        );
+    }
+}
