@@ -283,19 +283,22 @@ mod tests {
         let rewards = [1., 2., 3., 4., 5., 6.];
         let values = [1., 1., 2., 2., 3., 3.];
         let dones = [false; 3];
-        let (rho, cs) = ([1., 0.5, 1.], [1., 0.5, 1.]);
-        let (v, a) = vtrace(
-            &rewards,
-            &values,
-            &dones,
-            &[10., 20.],
-            None,
-            &rho,
-            &cs,
-            3,
-            2,
-            0.5,
-        );
+        // ρ̄ = c̄ = 1: the same clipped ratios for both.
+        let clipped = |r: &[f32]| {
+            vtrace(
+                &rewards,
+                &values,
+                &dones,
+                &[10., 20.],
+                None,
+                r,
+                r,
+                3,
+                2,
+                0.5,
+            )
+        };
+        let (v, a) = clipped(&[1., 0.5, 1.]);
         assert_eq!(v, vec![3.5, 5.5, 5., 7., 10., 16.]);
         assert_eq!(a, vec![2.5, 4.5, 3., 5., 7., 13.]);
         // Per coordinate: component 0 keeps the ratios above, component 1 has π/μ = 1 at
@@ -303,19 +306,7 @@ mod tests {
         //   v2 − V2 = 13, v1 − V1 = 3.5 + 0.5·13 = 10, v0 − V0 = 2 + 0.5·10 = 7
         //   v = (·, 8), (·, 12), (·, 16); advantages r_t + γ·v_(t+1) − V_t = R_t − V_t:
         //   (7, 10, 13); component 0 as before.
-        let (rho2, cs2) = ([1., 1., 0.5, 1., 1., 1.], [1., 1., 0.5, 1., 1., 1.]);
-        let (v, a) = vtrace(
-            &rewards,
-            &values,
-            &dones,
-            &[10., 20.],
-            None,
-            &rho2,
-            &cs2,
-            3,
-            2,
-            0.5,
-        );
+        let (v, a) = clipped(&[1., 1., 0.5, 1., 1., 1.]);
         assert_eq!(v, vec![3.5, 8., 5., 12., 10., 16.]);
         assert_eq!(a, vec![2.5, 7., 3., 10., 7., 13.]);
         // Every ratio 1: the n-step returns and R − V, a timeout bootstrapped included.
