@@ -153,13 +153,7 @@ pub fn coordinate_log_ratios(
             batch.payload.len()
         )));
     }
-    let fits = match routing {
-        Routing::Shared => true,
-        Routing::Own => c == d,
-        Routing::Pairs => c == d && d.is_multiple_of(2),
-        Routing::Choice => k == d && c > 0,
-    };
-    if !fits {
+    if !routing.fits(layout) {
         return Err(crate::CoreError::Data(format!(
             "routing {routing:?} does not fit a layout of {c} continuous entries, {k} choices \
              and {d} coordinates"

@@ -50,6 +50,20 @@ pub enum Routing {
     Choice,
 }
 
+impl Routing {
+    /// Whether `layout` has the entries this routing reads: d continuous entries for
+    /// `Own`, and in pairs for `Pairs`; d choices and a step for `Choice`.
+    pub fn fits(self, layout: &EnvLayout) -> bool {
+        let (c, k, d) = (layout.continuous, layout.choices, layout.aligned_dim);
+        match self {
+            Self::Shared => true,
+            Self::Own => c == d,
+            Self::Pairs => c == d && d.is_multiple_of(2),
+            Self::Choice => k == d && c > 0,
+        }
+    }
+}
+
 /// A d-cube's layout: the observation is p, `continuous` action entries, `choices`.
 const fn cube(d: usize, continuous: usize, choices: usize) -> EnvLayout {
     EnvLayout {
@@ -191,7 +205,8 @@ mod tests {
     use super::*;
 
     /// Each row sits at its kind's index, its name parses back to its kind, and its
-    /// default dimension is valid, with a layout and bounds of matching sizes.
+    /// default dimension is valid, with a layout and bounds of matching sizes and a
+    /// routing that fits the layout.
     #[test]
     fn every_row_is_its_kinds_and_consistent() {
         for (i, p) in PRESETS.iter().enumerate() {
@@ -203,6 +218,7 @@ mod tests {
             assert_eq!(l.aligned_dim, d, "{}", p.name);
             assert_eq!(b.obs_low.len(), l.obs_dim, "{}", p.name);
             assert_eq!((p.make)(d, 10).layout(), l, "{}", p.name);
+            assert!(p.routing.fits(&l), "{}: {:?}", p.name, p.routing);
         }
     }
 }
