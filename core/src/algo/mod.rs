@@ -420,6 +420,23 @@ pub(crate) fn batch_gae(
     Ok((adv, returns))
 }
 
+/// The width of a step's payload under the Gaussian behaviour policy that acted (its μ
+/// then its log σ), once the batch is checked to hold exactly that a step.
+pub(crate) fn behaviour_payload_width(
+    layout: &crate::env::EnvLayout,
+    batch: &Batch,
+) -> Result<usize> {
+    let (b, width) = (batch.len(), layout.mu_dim() + layout.log_std_dim());
+    if batch.payload.len() != b * width {
+        return Err(CoreError::Data(format!(
+            "the Gaussian behaviour policy's payload is μ then log σ, {width} values a step; \
+             the batch has {} values for {b} steps",
+            batch.payload.len()
+        )));
+    }
+    Ok(width)
+}
+
 /// log μ(a|o) of every step under the Gaussian behaviour policy that acted, from the
 /// (μ, log σ) its actor recorded in the payload (PPO's π_old, V-trace's μ).
 pub(crate) fn behaviour_log_probs(
@@ -429,14 +446,7 @@ pub(crate) fn behaviour_log_probs(
 ) -> Result<Vec<f32>> {
     let b = batch.len();
     let (m, s) = (layout.mu_dim(), layout.log_std_dim());
-    if batch.payload.len() != b * (m + s) {
-        return Err(CoreError::Data(format!(
-            "the Gaussian behaviour policy's payload is μ then log σ, {} values a step; the \
-             batch has {} values for {b} steps",
-            m + s,
-            batch.payload.len()
-        )));
-    }
+    behaviour_payload_width(layout, batch)?;
     let payload = Tensor::from_slice(&batch.payload, (b, m + s), dev)?;
     let actions = Tensor::from_slice(&batch.actions, (b, layout.action_dim()), dev)?;
     let logp = crate::nets::gaussian_log_prob(

@@ -2,7 +2,7 @@
 //! the ratios π/μ of the batch's actions, from the behaviour policy's payload, and the
 //! V-trace critic targets and advantages A2C and SAVER learn from under `--vtrace`.
 
-use super::{behaviour_log_probs, bootstrap_and_ends};
+use super::{behaviour_log_probs, behaviour_payload_width, bootstrap_and_ends};
 use crate::config::RunConfig;
 use crate::env::{EnvLayout, Routing};
 use crate::rollout::Batch;
@@ -144,13 +144,14 @@ pub fn coordinate_log_ratios(
         layout.choices,
         layout.aligned_dim,
     );
-    let (m, a_dim) = (c + k, layout.action_dim());
-    let width = m + c;
-    if batch.payload.len() != b * width || mu.len() != b * m || log_std.len() != b * c {
+    let (m, a_dim) = (layout.mu_dim(), layout.action_dim());
+    let width = behaviour_payload_width(layout, batch)?;
+    if mu.len() != b * m || log_std.len() != b * c {
         return Err(crate::CoreError::Data(format!(
-            "per-coordinate ratios need μ ({m}) and log σ ({c}) a step from both policies; \
-             the batch has {} payload values for {b} steps",
-            batch.payload.len()
+            "per-coordinate ratios need the learner's μ ({m}) and log σ ({c}) for each of \
+             the {b} steps; got {} and {}",
+            mu.len(),
+            log_std.len()
         )));
     }
     if !routing.fits(layout) {
@@ -176,13 +177,14 @@ pub fn coordinate_log_ratios(
         let (p_now, p_then) = (softmax(&mu_now[c..]), softmax(&then[c..m]));
         let pick = (0..k).find(|&j| a[c + j] > 0.5);
         let choice = pick.map_or(0.0, |j| p_now[j].ln() - p_then[j].ln());
+        let whole = gauss.iter().sum::<f64>() + choice;
         let row = &mut out[i * d..(i + 1) * d];
         for (j, r) in row.iter_mut().enumerate() {
             *r = match routing {
-                Routing::Shared => gauss.iter().sum::<f64>() + choice,
+                Routing::Shared => whole,
                 Routing::Own => gauss[j],
                 Routing::Pairs => gauss[j & !1] + gauss[j | 1],
-                Routing::Choice if pick == Some(j) => gauss.iter().sum::<f64>() + choice,
+                Routing::Choice if pick == Some(j) => whole,
                 Routing::Choice => (-p_now[j]).ln_1p() - (-p_then[j]).ln_1p(),
             } as f32;
         }

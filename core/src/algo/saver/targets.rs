@@ -48,11 +48,9 @@ impl Saver {
                     .to_vec1::<f32>()?;
                 shared_log_ratios(&self.layout, batch, &log_pi, &self.dev)?
             } else {
+                // fwd holds the batch's B rows.
                 let host = |t: &Tensor| -> Result<Vec<f32>> {
-                    Ok(t.narrow(0, 0, b)?
-                        .detach()
-                        .flatten_all()?
-                        .to_vec1::<f32>()?)
+                    Ok(t.detach().flatten_all()?.to_vec1::<f32>()?)
                 };
                 let (mu, log_std) = (host(&fwd.mu)?, host(&fwd.log_std)?);
                 coordinate_log_ratios(self.routing, &self.layout, batch, &mu, &log_std)?
