@@ -9,7 +9,7 @@ One JSON line.
 
     SB3 venv: pip install stable-baselines3==2.9.2 "gymnasium[mujoco]" ./python
     python bench/sb3_custom.py {a2c|ppo} --factory saver_actor.examples:pointmass --steps STEPS --seed SEED \\
-        [--max-steps 200]
+        [--max-steps 200] [--save MODEL.zip]
 """
 import argparse
 import importlib
@@ -29,6 +29,7 @@ ap.add_argument("--factory", required=True)
 ap.add_argument("--steps", type=int, required=True)
 ap.add_argument("--seed", type=int, default=0)
 ap.add_argument("--max-steps", type=int, default=200)
+ap.add_argument("--save", help="write the trained model here (SB3's zip), for bench/approach_profile.py")
 opts = ap.parse_args()
 mod, _, fn = opts.factory.partition(":")
 make_env, decl = getattr(importlib.import_module(mod), fn)()
@@ -74,5 +75,9 @@ before = evaluate(model)
 start = time.time()
 model.learn(total_timesteps=opts.steps)
 wall = time.time() - start
+if opts.save:
+    model.save(opts.save)
+log_std = float(model.policy.log_std.mean()) if hasattr(model.policy, "log_std") else None
 print(json.dumps({"env": decl.name, "algo": f"sb3-{opts.algo}", "seed": opts.seed, "steps": opts.steps,
-                  "wall_s": round(wall, 1), "untrained": before, "trained": evaluate(model)}), flush=True)
+                  "wall_s": round(wall, 1), "log_std_mean": log_std, "untrained": before,
+                  "trained": evaluate(model)}), flush=True)
