@@ -758,7 +758,7 @@ def test_reacher_trains_with_python_actors():
 def test_an_inertial_point_mass_trains_with_saver():
     # SAVER with its custom-env default (the saturation wall, the PCPN tuned on the
     # policy's steps, gamma 0.97, 64-step rollouts, the progress completed at success, the
-    # decaying rate) on the inertial point mass
+    # decaying rate, the sigma floor and 128-step minibatches) on the inertial point mass
     # (saver_actor.examples:pointmass): a PCPN of 1,000 batches from the actors' walks,
     # then 150 k steps. Measured (seeds 0-2, each with a PCPN of its own, the PCPN
     # frozen, gamma 0.99): untrained mean return -340 / -327 / -338, success 0 / 2 / 0 %;
@@ -768,9 +768,10 @@ def test_an_inertial_point_mass_trains_with_saver():
     # -29.3 / -16.9, success 56 / 90 %; with gamma 0.9 and 64-step rollouts (two
     # pretrainings): -16.6 / -16.1, success 96 / 100 %; today's default (three
     # pretrainings): -16.8 / -24.5 / -17.6, success 100 / 60 / 100 %; with the decaying
-    # rate (one pretraining): -17.7, success 94 %. 50 deterministic
-    # episodes each. The margins: return above a quarter of the untrained one (worst
-    # measured 0.15), success up by 10 points.
+    # rate (one pretraining): -17.7, success 94 %; with the sigma floor and minibatches
+    # (three pretrainings): -15.5 / -15.3 / -15.5, success 100 / 100 / 100 %. 50
+    # deterministic episodes each. The margins: return above a tenth of the untrained
+    # one (worst measured with today's default 0.046), success up by 70 points.
     store = Server("pcpn-trainer", ["pcpn-trainer", "--store", os.path.join(TMP, "store-pm")]).wait_ready()
     try:
         before, after, settings, _ = custom_run("saver_actor.examples:pointmass", "saver", 150_000,
@@ -778,8 +779,8 @@ def test_an_inertial_point_mass_trains_with_saver():
     finally:
         store.stop()
     assert settings.complete_at_success, "SAVER's custom-env default completes the progress at success"
-    assert after["return"] > 0.25 * before["return"], (before, after)
-    assert after["success"] >= before["success"] + 0.1, (before, after)
+    assert after["return"] > 0.1 * before["return"], (before, after)
+    assert after["success"] >= before["success"] + 0.7, (before, after)
 
 
 if __name__ == "__main__":

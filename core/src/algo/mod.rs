@@ -24,9 +24,9 @@ pub use qnet_grad::{quantile_net_grads, NetGrads};
 pub use qrrl::{qrrl_actor_losses, Qrrl, RECOMMENDED_QRRL_LR};
 pub use saver::{tau_tensors, GradPath, Saver};
 pub use saver_defaults::{
-    CUSTOM_SAVER_GAMMA, CUSTOM_SAVER_MU_RAW_PENALTY, CUSTOM_SAVER_PCPN_TUNE_LR,
-    CUSTOM_SAVER_ROLLOUT, HIGH_DIM_ANGLE, HIGH_DIM_LOG_STD_MIN, HIGH_DIM_PRETRAIN_BATCHES,
-    RECOMMENDED_SAVER_LR,
+    CUSTOM_SAVER_GAMMA, CUSTOM_SAVER_LOG_STD_MIN, CUSTOM_SAVER_MINIBATCH_SIZE,
+    CUSTOM_SAVER_MU_RAW_PENALTY, CUSTOM_SAVER_PCPN_TUNE_LR, CUSTOM_SAVER_ROLLOUT, HIGH_DIM_ANGLE,
+    HIGH_DIM_LOG_STD_MIN, HIGH_DIM_PRETRAIN_BATCHES, RECOMMENDED_SAVER_LR,
 };
 pub use saver_grad::{
     policy_grads, saver_actor_losses, weighted_quantile_losses, InputGrad, PcpnGrad, SaverLosses,
