@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
-"""Async mode with one slow actor, with and without V-trace, against sync (issue 32):
-a `saver learner` and 16 `saver actor` processes over gRPC on loopback, one of them
-slowed by --step-delay-us; per run, one JSON line: wall seconds, env steps/s, mean and
+"""Async mode with slow actors, with and without V-trace, against sync (issue 32):
+a `saver learner` and 16 `saver actor` processes over gRPC on loopback, the first
+--slow of them (one by default) slowed by --delay-us a step; per run, one JSON line: wall seconds, env steps/s, mean and
 largest policy lag, stale rollouts dropped, the steps at which the mean episode length
 of the last 100 episodes first fell below --threshold, and the final mean length.
 Standard library only.
 
     python3 bench/async_vtrace.py target/release/saver --algo a2c --env angle --dim 4 \\
-        --steps 1000000 --seeds 0 --delay-us 400 [--modes sync,async,vtrace] [--out DIR]
+        --steps 1000000 --seeds 0 --delay-us 400 [--slow 1] [--modes sync,async,vtrace] [--out DIR]
 """
 import argparse
 import csv
@@ -29,7 +29,8 @@ ap.add_argument("--dim", type=int, default=4)
 ap.add_argument("--steps", type=int, default=1_000_000)
 ap.add_argument("--seeds", type=int, nargs="+", default=[0])
 ap.add_argument("--actors", type=int, default=16)
-ap.add_argument("--delay-us", type=int, default=400, help="step delay of the one slow actor")
+ap.add_argument("--delay-us", type=int, default=400, help="step delay of each slow actor")
+ap.add_argument("--slow", type=int, default=1, help="how many of the actors are slowed")
 ap.add_argument("--max-lag", type=int, default=8)
 ap.add_argument("--threshold", type=float, default=100.0)
 ap.add_argument("--modes", default="sync,async,vtrace")
@@ -63,7 +64,7 @@ def run(mode, seed):
     start = time.time()
     actors = []
     for i in range(opts.actors):
-        delay = opts.delay_us if i == 0 else 0
+        delay = opts.delay_us if i < opts.slow else 0
         actors.append(subprocess.Popen([opts.saver, "actor", "--learner", f"http://127.0.0.1:{port}",
                                         "--name", f"a{i}", "--step-delay-us", str(delay)],
                                        stdout=log, stderr=subprocess.STDOUT))
@@ -80,7 +81,8 @@ def run(mode, seed):
     last = rows[-1]
     return {"algo": opts.algo, "env": f"{opts.env}-d{opts.dim}", "mode": mode, "seed": seed,
             "steps": int(last["steps"]),
-            "delay_us": opts.delay_us, "wall_s": round(wall, 1), "steps_per_s": round(int(last["steps"]) / wall),
+            "delay_us": opts.delay_us, "slow": opts.slow, "wall_s": round(wall, 1),
+            "steps_per_s": round(int(last["steps"]) / wall),
             "lag_mean": round(sum(float(r["lag_mean"]) for r in rows) / len(rows), 2),
             "lag_max": max(int(r["lag_max"]) for r in rows), "stale_dropped": int(last["stale_dropped"]),
             f"steps_to_{opts.threshold:g}": reached, "final_mean_len": float(last["mean_ep_len_100"])}
