@@ -33,7 +33,8 @@ WINDOWS = [(0, 5), (5, 10), (10, 20), (20, 40), (40, opts.max_steps)]
 
 
 def load(path):
-    """A predict(obs) -> action in [-1, 1] (the env's Box scaled by decl.env_actions)."""
+    """A predict(obs) -> action in [-1, 1] (the env's Box scaled by decl.env_actions), for one
+    observation or a batch."""
     if path.endswith(".zip"):
         from stable_baselines3 import PPO
 
@@ -95,7 +96,7 @@ def rest_curve(predict):
             s = np.zeros((len(goals), len(decl.obs_low)), dtype=np.float32)
             s[:, p_at], s[:, g_at] = goals, goals
             s[:, p_at[k]] += x
-            pushes.append(np.mean([predict(row)[k] for row in s]))
+            pushes.append(np.mean(predict(s)[:, k]))
         curve.append(np.mean(pushes))
     return " ".join(f"{x:+.2f}:{a:+.2f}" for x, a in zip(OFFSETS, curve))
 

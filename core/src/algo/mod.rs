@@ -446,8 +446,8 @@ pub(crate) fn behaviour_log_probs(
 ) -> Result<Vec<f32>> {
     let b = batch.len();
     let (m, s) = (layout.mu_dim(), layout.log_std_dim());
-    behaviour_payload_width(layout, batch)?;
-    let payload = Tensor::from_slice(&batch.payload, (b, m + s), dev)?;
+    let width = behaviour_payload_width(layout, batch)?;
+    let payload = Tensor::from_slice(&batch.payload, (b, width), dev)?;
     let actions = Tensor::from_slice(&batch.actions, (b, layout.action_dim()), dev)?;
     let logp = crate::nets::gaussian_log_prob(
         layout,

@@ -11,7 +11,7 @@ mod step;
 mod targets;
 
 use super::pcpn_tune::PcpnTuner;
-use super::saver_grad::PcpnGrad;
+use super::saver_grad::{host, PcpnGrad};
 use super::saver_signal::{noise_rank_delta, predicted_delta, SignalBatch};
 use super::{update_rows, Algorithm, UpdateStats};
 use crate::config::{DeltaTarget, RunConfig, SaverConfig};
@@ -252,18 +252,22 @@ impl Saver {
         let v_all = &all.value; // [B+T, d]
         let fwd = all.narrow(b)?;
         let value_host: Vec<f32> = fwd.value.flatten_all()?.to_vec1()?;
+        let (mu_host, log_std_host) = (host(&fwd.mu)?, host(&fwd.log_std)?);
         let Targets {
             returns: returns_host,
             advantages: mut adv_host,
             vtrace_stats,
-        } = self.targets(batch, &fwd, v_all, &value_host, n_ends)?;
+        } = self.targets(
+            batch,
+            &fwd,
+            (&mu_host, &log_std_host),
+            v_all,
+            &value_host,
+            n_ends,
+        )?;
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }
-        let (mu_host, log_std_host): (Vec<f32>, Vec<f32>) = (
-            fwd.mu.flatten_all()?.to_vec1()?,
-            fwd.log_std.flatten_all()?.to_vec1()?,
-        );
         let target = match self.cfg.target {
             DeltaTarget::Observed => Cow::Borrowed(batch.state_delta.as_slice()),
             target => {

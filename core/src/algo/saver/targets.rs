@@ -21,13 +21,14 @@ pub(super) struct Targets {
 }
 
 impl Saver {
-    /// The targets of `batch`, whose B steps' forward is `fwd` (their V(x) on the host
-    /// in `value_host`), with `v_all` V at every row of [`crate::algo::update_rows`]
-    /// (`n_ends` timeouts).
+    /// The targets of `batch`, whose B steps' forward is `fwd` (their μ and log σ on the
+    /// host in `policy_host`, their V(x) in `value_host`), with `v_all` V at every row of
+    /// [`crate::algo::update_rows`] (`n_ends` timeouts).
     pub(super) fn targets(
         &self,
         batch: &Batch,
         fwd: &Forward,
+        policy_host: (&[f32], &[f32]),
         v_all: &Tensor,
         value_host: &[f32],
         n_ends: usize,
@@ -48,12 +49,8 @@ impl Saver {
                     .to_vec1::<f32>()?;
                 shared_log_ratios(&self.layout, batch, &log_pi, &self.dev)?
             } else {
-                // fwd holds the batch's B rows.
-                let host = |t: &Tensor| -> Result<Vec<f32>> {
-                    Ok(t.detach().flatten_all()?.to_vec1::<f32>()?)
-                };
-                let (mu, log_std) = (host(&fwd.mu)?, host(&fwd.log_std)?);
-                coordinate_log_ratios(self.routing, &self.layout, batch, &mu, &log_std)?
+                let (mu, log_std) = policy_host;
+                coordinate_log_ratios(self.routing, &self.layout, batch, mu, log_std)?
             };
             let corrected = vt.targets(
                 batch,
