@@ -153,7 +153,7 @@ impl Optimizer {
     }
 
     /// The global L2 norm of the gradients of this optimiser's variables. A gradient on
-    /// the CPU has its squares summed in f64 in row-major order, as [`Optimizer::step_host`]
+    /// the CPU has its squares summed in f64 as [`Optimizer::step_host`]
     /// sums them, so both clip alike to the bit.
     pub fn grad_norm(&self, grads: &GradStore) -> Result<f64> {
         let mut sq = 0.0f64;
@@ -408,6 +408,17 @@ mod tests {
         }
         let theta = v.as_tensor().to_vec1::<f32>().unwrap()[0];
         assert!((theta - 0.975).abs() < 1e-5, "{theta}");
+    }
+
+    /// The lane-wise sum of squares covers every element, the tail after the last full
+    /// eight included: Σ (i/2)² for i = 0..19 is ¼·Σ i² = ¼·(19·20·39/6) = ¼·2470 = 617.5,
+    /// exact in f64 at every partial sum (all multiples of ¼ below 2¹⁰).
+    #[test]
+    fn the_sum_of_squares_takes_every_element() {
+        let x: Vec<f32> = (0..20).map(|i| i as f32 * 0.5).collect();
+        assert_eq!(host::sum_sq(&x), 617.5);
+        assert_eq!(host::sum_sq(&x[..7]), 0.25 * 91.0); // Σ i² for i < 7 = 91: tail only
+        assert_eq!(host::sum_sq(&[]), 0.0);
     }
 
     /// The one-pass host step and the tensor ops give the same bits: a 3x5 weight and
