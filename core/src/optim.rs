@@ -426,7 +426,8 @@ mod tests {
     /// for both optimisers (no slot gets near a subnormal in 6 steps).
     #[test]
     fn the_host_step_equals_the_tensor_step_to_the_bit() {
-        // 0: tensor ops, 1: the host step, 2: a HostState's steps, committed at the end.
+        // 0: tensor ops, 1: the host step, 2: a HostState's steps, committed at the end,
+        // 3: the same on two threads (w on this one, b on the second).
         for config in [OptimizerConfig::RMSPROP_TF1, OptimizerConfig::ADAM_TF1] {
             let run = |mode: usize| -> Vec<Vec<f32>> {
                 let w = Var::from_slice(
@@ -440,7 +441,7 @@ mod tests {
                 let mut opt = Optimizer::with_clip(vars, config, 0.01, Some(2.0)).unwrap();
                 assert!(opt.host);
                 opt.host = mode > 0;
-                let mut state = (mode == 2).then(|| opt.host_state().unwrap());
+                let mut state = (mode >= 2).then(|| opt.host_state().unwrap());
                 let mut clipped = 0;
                 let x = Tensor::from_slice(&[0.5f32, -1.5, 2.0, 0.25, -0.75], (5, 1), &Device::Cpu)
                     .unwrap();
@@ -467,7 +468,9 @@ mod tests {
                                 let g = grads.get(of.as_tensor()).unwrap();
                                 (v.as_tensor().id(), to_host(g).unwrap())
                             };
-                            let n = opt.step_host(h, vec![g(&w, &wk), g(&b, &bk)]).unwrap();
+                            let grads = vec![g(&w, &wk), g(&b, &bk)];
+                            let threads = if mode == 3 { 2 } else { 1 };
+                            let n = opt.step_host_on(h, grads, threads).unwrap();
                             clipped += (n > 2.0) as usize;
                         }
                         None => {
@@ -495,6 +498,7 @@ mod tests {
             let host = run(1);
             assert_eq!(run(0), host, "{config:?}");
             assert_eq!(run(2), host, "{config:?}");
+            assert_eq!(run(3), host, "{config:?}");
         }
     }
 
@@ -523,6 +527,37 @@ mod tests {
         drop(h);
         assert_eq!(v.as_tensor().to_vec1::<f32>().unwrap(), vec![1.0]);
         assert_eq!(opt.steps(), 0);
+
+        // On two threads (a on this one, b on the second): a gradient whose square
+        // overflows f32 in b's slot (f32::MAX² ≈ 1.2e77 is finite in the f64 norm) is
+        // refused and named; a NaN gradient on either thread makes the norm NaN.
+        let (a, b) = (
+            Var::from_slice(&[1.0f32], 1, &Device::Cpu).unwrap(),
+            Var::from_slice(&[2.0f32], 1, &Device::Cpu).unwrap(),
+        );
+        let vars = vec![("a".into(), a.clone()), ("b".into(), b.clone())];
+        let opt = Optimizer::new(vars, OptimizerConfig::ADAM_TF1, 0.1).unwrap();
+        let (ia, ib) = (a.as_tensor().id(), b.as_tensor().id());
+        let mut h = opt.host_state().unwrap();
+        let err = opt
+            .step_host_on(&mut h, vec![(ia, vec![0.5]), (ib, vec![f32::MAX])], 2)
+            .unwrap_err();
+        assert!(
+            matches!(&err, CoreError::NonFinite(m) if m.contains(" b ")),
+            "{err}"
+        );
+        for grads in [
+            vec![(ia, vec![f32::NAN]), (ib, vec![0.5])],
+            vec![(ia, vec![0.5]), (ib, vec![f32::NAN])],
+        ] {
+            let mut h = opt.host_state().unwrap();
+            let err = opt.step_host_on(&mut h, grads, 2).unwrap_err();
+            assert!(
+                matches!(&err, CoreError::NonFinite(m) if m.contains("norm")),
+                "{err}"
+            );
+            assert_eq!(h.steps(), 0);
+        }
     }
 
     /// A weight whose gradient falls to 0 (a ReLU unit no row reaches any more): after

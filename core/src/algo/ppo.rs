@@ -63,7 +63,8 @@ pub struct Ppo {
     /// Which gradient implementation runs.
     path: GradPath,
     /// Threads of the hand-written step (0: one per core): from 2 on, the critic's part
-    /// of each minibatch runs beside the agent's (the same bits).
+    /// of each minibatch runs beside the agent's, and the optimiser steps half of the
+    /// variables on a second thread (the same bits).
     threads: usize,
     /// Device.
     dev: Device,
@@ -236,9 +237,9 @@ impl Ppo {
         totals.grad_norm += match host {
             Some(h) => {
                 let nets = self.fast_nets();
-                let parallel = super::fused::threads_for(self.threads) > 1;
-                let grads = fast::step_grads(&nets, h, mb, parallel, totals)?;
-                self.opt.step_host(h, grads)?
+                let threads = super::fused::threads_for(self.threads);
+                let grads = fast::step_grads(&nets, h, mb, threads > 1, totals)?;
+                self.opt.step_host_on(h, grads, threads)?
             }
             None => {
                 let grads = self.reference_grads(mb, totals)?;

@@ -162,6 +162,49 @@ impl HostState {
     }
 }
 
+/// One variable's part of a host step: its index, value, slots and gradient.
+struct VarStep<'a> {
+    i: usize,
+    value: &'a mut [f32],
+    s1: &'a mut [f32],
+    s2: &'a mut [f32],
+    g: &'a [f32],
+}
+
+/// Each variable's Σ g², in order.
+fn squares(vars: &[VarStep]) -> Vec<f64> {
+    vars.iter().map(|v| sum_sq(v.g)).collect()
+}
+
+/// √ of the sums added in order from 0.
+fn norm_of(squares: &[f64]) -> f64 {
+    squares.iter().fold(0.0f64, |acc, &s| acc + s).sqrt()
+}
+
+/// Every variable's step; the index of the first whose new value or slot is not finite.
+fn apply_all(at: StepAt, vars: &mut [VarStep]) -> Option<usize> {
+    for v in vars {
+        if apply(at, v.value, v.s1, v.s2, v.g) {
+            return Some(v.i);
+        }
+    }
+    None
+}
+
+/// Where to split `vars` into two runs of about equal elements: after the first
+/// variable that takes the running count to half or more.
+fn half_way(vars: &[VarStep]) -> usize {
+    let total: usize = vars.iter().map(|v| v.g.len()).sum();
+    let mut seen = 0;
+    for (k, v) in vars.iter().enumerate() {
+        seen += v.g.len();
+        if 2 * seen >= total {
+            return k + 1;
+        }
+    }
+    vars.len()
+}
+
 impl Optimizer {
     /// The variables, slots and step count on the host, for a run of [`Optimizer::step_host`]s
     /// (every variable on the CPU); [`Optimizer::commit_host`] writes them back.
@@ -206,9 +249,103 @@ impl Optimizer {
     /// that would make a value or slot non-finite, is [`CoreError::NonFinite`] and
     /// leaves `h` unusable: drop it (nothing has been written back).
     pub fn step_host(&self, h: &mut HostState, grads: Vec<(TensorId, Vec<f32>)>) -> Result<f64> {
+        self.step_host_on(h, grads, 1)
+    }
+
+    /// [`Optimizer::step_host`] with the variables split into two runs of about equal
+    /// size when `threads` > 1, the later run on a second thread: the same bits (every
+    /// element's arithmetic is its own, and the squares of each variable are summed as
+    /// before and added in the optimiser's order).
+    pub fn step_host_on(
+        &self,
+        h: &mut HostState,
+        grads: Vec<(TensorId, Vec<f32>)>,
+        threads: usize,
+    ) -> Result<f64> {
         self.made(h)?;
+        let at = self.trained(h, &grads)?;
+        let lr = super::lr_at(self.lr, self.decay_over, h.t);
+        let t = h.t + 1;
+        let step_for = |norm: f64| StepAt {
+            config: self.config,
+            lr,
+            t,
+            scale: self
+                .clip
+                .filter(|&c| norm > c)
+                .map_or(1.0, |c| (c / norm) as f32),
+        };
+        // Each trained variable's buffers, in the optimiser's order.
+        let mut s2s = h.s2.iter_mut();
+        let mut vars = Vec::with_capacity(at.len());
+        for (i, (value, s1)) in h.values.iter_mut().zip(h.s1.iter_mut()).enumerate() {
+            let s2 = s2s.next().map_or(&mut [][..], |s| &mut s[..]);
+            if let Some(k) = at.iter().position(|&j| j == i) {
+                let g = &grads[k].1;
+                vars.push(VarStep {
+                    i,
+                    value,
+                    s1,
+                    s2,
+                    g,
+                });
+            }
+        }
+        let split = if threads > 1 {
+            half_way(&vars)
+        } else {
+            vars.len()
+        };
+        let (first, later) = vars.split_at_mut(split);
+        let (norm, bad) = if later.is_empty() {
+            let norm = norm_of(&squares(first));
+            let bad = norm.is_finite().then(|| apply_all(step_for(norm), first));
+            (norm, bad.flatten())
+        } else {
+            std::thread::scope(|scope| {
+                let (to_main, from_worker) = std::sync::mpsc::channel();
+                let (to_worker, from_main) = std::sync::mpsc::channel::<Option<StepAt>>();
+                let worker = scope.spawn(move || {
+                    // The main thread waits on these sums; it hangs up only by panicking.
+                    let _ = to_main.send(squares(later));
+                    from_main
+                        .recv()
+                        .ok()
+                        .flatten()
+                        .and_then(|s| apply_all(s, later))
+                });
+                let mut sq = squares(first);
+                // An empty list stands in for a worker that panicked; its join rethrows.
+                sq.extend(from_worker.recv().unwrap_or_default());
+                let norm = norm_of(&sq);
+                let step = norm.is_finite().then(|| step_for(norm));
+                // The worker holds its receiver until it has read this.
+                let _ = to_worker.send(step);
+                let mine = step.and_then(|s| apply_all(s, first));
+                let theirs = worker
+                    .join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+                (norm, mine.or(theirs))
+            })
+        };
+        if !norm.is_finite() {
+            return Err(CoreError::NonFinite(format!("the gradient norm is {norm}")));
+        }
+        if let Some(i) = bad {
+            return Err(CoreError::NonFinite(format!(
+                "the step would make the value or a slot of {} non-finite",
+                self.vars[i].0
+            )));
+        }
+        h.t = t;
+        Ok(norm)
+    }
+
+    /// The index of each gradient's variable in `h`; a gradient of the wrong size, for a
+    /// variable not trained here or for one already given is [`CoreError::Data`].
+    fn trained(&self, h: &HostState, grads: &[(TensorId, Vec<f32>)]) -> Result<Vec<usize>> {
         let mut at = Vec::with_capacity(grads.len());
-        for (id, g) in &grads {
+        for (id, g) in grads {
             let i = h.index(*id).ok_or_else(|| {
                 CoreError::Data("a host gradient for a variable not trained here".into())
             })?;
@@ -227,38 +364,7 @@ impl Optimizer {
             }
             at.push(i);
         }
-        let mut sq = 0.0f64;
-        for i in 0..h.ids.len() {
-            if let Some(k) = at.iter().position(|&j| j == i) {
-                sq += sum_sq(&grads[k].1);
-            }
-        }
-        let norm = sq.sqrt();
-        if !norm.is_finite() {
-            return Err(CoreError::NonFinite(format!("the gradient norm is {norm}")));
-        }
-        let lr = super::lr_at(self.lr, self.decay_over, h.t);
-        let t = h.t + 1;
-        let step = StepAt {
-            config: self.config,
-            lr,
-            t,
-            scale: self
-                .clip
-                .filter(|&c| norm > c)
-                .map_or(1.0, |c| (c / norm) as f32),
-        };
-        for (&i, (_, g)) in at.iter().zip(&grads) {
-            let s2 = h.s2.get_mut(i).map_or(&mut [][..], |s| &mut s[..]);
-            if apply(step, &mut h.values[i], &mut h.s1[i], s2, g) {
-                return Err(CoreError::NonFinite(format!(
-                    "the step would make the value or a slot of {} non-finite",
-                    self.vars[i].0
-                )));
-            }
-        }
-        h.t = t;
-        Ok(norm)
+        Ok(at)
     }
 
     /// Writes a [`HostState`] made by this optimiser back: the variables' values, the
