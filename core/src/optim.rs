@@ -189,7 +189,7 @@ impl Optimizer {
                 }
             }
             let mut h = self.host_state()?;
-            let norm = self.step_host(&mut h, host_grads)?;
+            let norm = self.step_host(&mut h, &host_grads)?;
             self.commit_host(h)?;
             return Ok(norm);
         }
@@ -470,7 +470,7 @@ mod tests {
                             };
                             let grads = vec![g(&w, &wk), g(&b, &bk)];
                             let threads = if mode == 3 { 2 } else { 1 };
-                            let n = opt.step_host_on(h, grads, threads).unwrap();
+                            let n = opt.step_host_on(h, &grads, threads).unwrap();
                             clipped += (n > 2.0) as usize;
                         }
                         None => {
@@ -510,18 +510,18 @@ mod tests {
         let (v, opt) = one_weight(1.0, OptimizerConfig::ADAM_TF1, 0.1);
         let id = v.as_tensor().id();
         let mut h = opt.host_state().unwrap();
-        opt.step_host(&mut h, vec![(id, vec![0.5])]).unwrap();
+        opt.step_host(&mut h, &[(id, vec![0.5])]).unwrap();
         assert!(h.value(v.as_tensor()).unwrap()[0] < 1.0);
         assert!(matches!(
-            opt.step_host(&mut h, vec![(id, vec![f32::INFINITY])]),
+            opt.step_host(&mut h, &[(id, vec![f32::INFINITY])]),
             Err(CoreError::NonFinite(_))
         ));
         assert!(matches!(
-            opt.step_host(&mut h, vec![(id, vec![0.5, 0.5])]),
+            opt.step_host(&mut h, &[(id, vec![0.5, 0.5])]),
             Err(CoreError::Data(_))
         ));
         assert!(matches!(
-            opt.step_host(&mut h, vec![(id, vec![0.5]), (id, vec![0.5])]),
+            opt.step_host(&mut h, &[(id, vec![0.5]), (id, vec![0.5])]),
             Err(CoreError::Data(_))
         ));
         drop(h);
@@ -540,7 +540,7 @@ mod tests {
         let (ia, ib) = (a.as_tensor().id(), b.as_tensor().id());
         let mut h = opt.host_state().unwrap();
         let err = opt
-            .step_host_on(&mut h, vec![(ia, vec![0.5]), (ib, vec![f32::MAX])], 2)
+            .step_host_on(&mut h, &[(ia, vec![0.5]), (ib, vec![f32::MAX])], 2)
             .unwrap_err();
         assert!(
             matches!(&err, CoreError::NonFinite(m) if m.contains(" b ")),
@@ -551,7 +551,7 @@ mod tests {
             vec![(ia, vec![0.5]), (ib, vec![f32::NAN])],
         ] {
             let mut h = opt.host_state().unwrap();
-            let err = opt.step_host_on(&mut h, grads, 2).unwrap_err();
+            let err = opt.step_host_on(&mut h, &grads, 2).unwrap_err();
             assert!(
                 matches!(&err, CoreError::NonFinite(m) if m.contains("norm")),
                 "{err}"

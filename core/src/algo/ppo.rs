@@ -231,15 +231,15 @@ impl Ppo {
     fn step(
         &mut self,
         mb: &Minibatch,
-        host: Option<&mut HostState>,
+        host: Option<(&mut HostState, &mut fast::Scratch)>,
         totals: &mut Totals,
     ) -> Result<()> {
         totals.grad_norm += match host {
-            Some(h) => {
+            Some((h, scratch)) => {
                 let nets = self.fast_nets();
                 let threads = super::fused::threads_for(self.threads);
-                let grads = fast::step_grads(&nets, h, mb, threads > 1, totals)?;
-                self.opt.step_host_on(h, grads, threads)?
+                let grads = fast::step_grads(&nets, h, mb, threads > 1, totals, scratch)?;
+                self.opt.step_host_on(h, &grads, threads)?
             }
             None => {
                 let grads = self.reference_grads(mb, totals)?;
@@ -369,13 +369,15 @@ impl Ppo {
         // The fast path's steps read and write the optimiser's host copy of the weights
         // and slots, committed once after the passes (dropped on an error).
         let mut opt_host = self.fast().then(|| self.opt.host_state()).transpose()?;
+        let mut scratch = fast::Scratch::default();
         for _ in 0..self.cfg.epochs {
             order.shuffle(&mut self.rng);
             for j in 0..m {
                 // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
                 let idx = &order[j * b / m..(j + 1) * b / m];
                 let mb = self.minibatch(idx, batch, &host);
-                self.step(&mb, opt_host.as_mut(), &mut totals)?;
+                let host = opt_host.as_mut().map(|h| (h, &mut scratch));
+                self.step(&mb, host, &mut totals)?;
             }
         }
         if let Some(h) = opt_host {

@@ -248,7 +248,11 @@ impl Optimizer {
     /// or for one already given is [`CoreError::Data`]; a non-finite norm, or a step
     /// that would make a value or slot non-finite, is [`CoreError::NonFinite`] and
     /// leaves `h` unusable: drop it (nothing has been written back).
-    pub fn step_host(&self, h: &mut HostState, grads: Vec<(TensorId, Vec<f32>)>) -> Result<f64> {
+    pub fn step_host<G: AsRef<[f32]> + Sync>(
+        &self,
+        h: &mut HostState,
+        grads: &[(TensorId, G)],
+    ) -> Result<f64> {
         self.step_host_on(h, grads, 1)
     }
 
@@ -256,14 +260,14 @@ impl Optimizer {
     /// size when `threads` > 1, the later run on a second thread: the same bits (every
     /// element's arithmetic is its own, and the squares of each variable are summed as
     /// before and added in the optimiser's order).
-    pub fn step_host_on(
+    pub fn step_host_on<G: AsRef<[f32]> + Sync>(
         &self,
         h: &mut HostState,
-        grads: Vec<(TensorId, Vec<f32>)>,
+        grads: &[(TensorId, G)],
         threads: usize,
     ) -> Result<f64> {
         self.made(h)?;
-        let at = self.trained(h, &grads)?;
+        let at = self.trained(h, grads)?;
         let lr = super::lr_at(self.lr, self.decay_over, h.t);
         let t = h.t + 1;
         let step_for = |norm: f64| StepAt {
@@ -281,7 +285,7 @@ impl Optimizer {
         for (i, (value, s1)) in h.values.iter_mut().zip(h.s1.iter_mut()).enumerate() {
             let s2 = s2s.next().map_or(&mut [][..], |s| &mut s[..]);
             if let Some(k) = at.iter().position(|&j| j == i) {
-                let g = &grads[k].1;
+                let g = grads[k].1.as_ref();
                 vars.push(VarStep {
                     i,
                     value,
@@ -343,9 +347,14 @@ impl Optimizer {
 
     /// The index of each gradient's variable in `h`; a gradient of the wrong size, for a
     /// variable not trained here or for one already given is [`CoreError::Data`].
-    fn trained(&self, h: &HostState, grads: &[(TensorId, Vec<f32>)]) -> Result<Vec<usize>> {
+    fn trained<G: AsRef<[f32]>>(
+        &self,
+        h: &HostState,
+        grads: &[(TensorId, G)],
+    ) -> Result<Vec<usize>> {
         let mut at = Vec::with_capacity(grads.len());
         for (id, g) in grads {
+            let g = g.as_ref();
             let i = h.index(*id).ok_or_else(|| {
                 CoreError::Data("a host gradient for a variable not trained here".into())
             })?;

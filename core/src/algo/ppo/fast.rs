@@ -32,13 +32,17 @@ impl<'a> HostMlp<'a> {
         Ok(Self { layers: out })
     }
 
-    /// Every layer's output for `x` [n, in]: ReLU on all but the last, which is linear.
-    fn forward(&self, x: &[f32], n: usize) -> Vec<Vec<f32>> {
-        let mut acts: Vec<Vec<f32>> = Vec::with_capacity(self.layers.len());
+    /// Every layer's output for `x` [n, in] into `s.acts`: ReLU on all but the last,
+    /// which is linear.
+    fn forward(&self, x: &[f32], n: usize, s: &mut MlpScratch) {
+        s.acts.resize_with(self.layers.len(), Vec::new);
         for (k, (w, b, i, o)) in self.layers.iter().enumerate() {
-            let input = if k == 0 { x } else { &acts[k - 1] };
-            let mut y = vec![0.0f32; n * o];
-            matmul(&mut y, input, w, (n, *i, *o), (false, false));
+            let (done, rest) = s.acts.split_at_mut(k);
+            let input = if k == 0 { x } else { &done[k - 1] };
+            let y = &mut rest[0];
+            // gemm writes every element (it never reads dst), so no zeroing.
+            y.resize(n * o, 0.0);
+            matmul(y, input, w, (n, *i, *o), (false, false));
             let last = k + 1 == self.layers.len();
             for row in y.chunks_exact_mut(*o) {
                 for (v, bias) in row.iter_mut().zip(b.iter()) {
@@ -48,47 +52,67 @@ impl<'a> HostMlp<'a> {
                     }
                 }
             }
-            acts.push(y);
         }
-        acts
     }
 
-    /// Each layer's (dW, db) from the gradient `dy` of the last layer's output, given
-    /// the input `x` and the activations `forward` returned.
-    fn backward(
-        &self,
-        x: &[f32],
-        acts: &[Vec<f32>],
-        mut dy: Vec<f32>,
-        n: usize,
-    ) -> Vec<(Vec<f32>, Vec<f32>)> {
-        let mut grads = Vec::with_capacity(self.layers.len());
+    /// Each layer's (dW, db) into `s.grads` from the gradient of the last layer's
+    /// output in `s.dy` [n, out], given the input `x` and the activations of
+    /// [`HostMlp::forward`] in `s.acts`. Leaves `s.dy` and `s.dx` as scratch.
+    fn backward(&self, x: &[f32], n: usize, s: &mut MlpScratch) {
+        s.grads.resize_with(self.layers.len(), Default::default);
         for k in (0..self.layers.len()).rev() {
             let (w, _, i, o) = &self.layers[k];
-            let input = if k == 0 { x } else { &acts[k - 1] };
-            let mut dw = vec![0.0f32; i * o];
-            matmul(&mut dw, input, &dy, (*i, n, *o), (true, false));
-            let mut db = vec![0.0f32; *o];
-            for row in dy.chunks_exact(*o) {
-                for (s, v) in db.iter_mut().zip(row) {
-                    *s += v;
+            let input = if k == 0 { x } else { &s.acts[k - 1] };
+            let (dw, db) = &mut s.grads[k];
+            dw.resize(i * o, 0.0);
+            matmul(dw, input, &s.dy, (*i, n, *o), (true, false));
+            db.clear();
+            db.resize(*o, 0.0);
+            for row in s.dy.chunks_exact(*o) {
+                for (sum, v) in db.iter_mut().zip(row) {
+                    *sum += v;
                 }
             }
-            grads.push((dw, db));
             if k > 0 {
-                let mut dx = vec![0.0f32; n * i];
-                matmul(&mut dx, &dy, w, (n, *o, *i), (false, true));
+                s.dx.resize(n * i, 0.0);
+                matmul(&mut s.dx, &s.dy, w, (n, *o, *i), (false, true));
                 // Through the ReLU that made the input: no gradient where it was cut
                 // (a select, not a branch, so that the loop vectorises).
-                for (g, a) in dx.iter_mut().zip(input) {
+                for (g, a) in s.dx.iter_mut().zip(input) {
                     *g = if *a > 0.0 { *g } else { 0.0 };
                 }
-                dy = dx;
+                std::mem::swap(&mut s.dy, &mut s.dx);
             }
         }
-        grads.reverse();
-        grads
     }
+}
+
+/// One MLP's buffers for [`HostMlp::forward`] and [`HostMlp::backward`], kept across
+/// the minibatches of an update: each step writes the same memory (no allocation, no
+/// zeroing, and addresses that stay in cache beside the optimiser's state).
+#[derive(Default)]
+struct MlpScratch {
+    /// Each layer's output [n, out].
+    acts: Vec<Vec<f32>>,
+    /// Each layer's (dW [in, out], db [out]).
+    grads: Vec<(Vec<f32>, Vec<f32>)>,
+    /// The gradient of the layer output being propagated back, and of its input.
+    dy: Vec<f32>,
+    dx: Vec<f32>,
+}
+
+/// The agent's buffers: its MLP's and the log σ gradient.
+#[derive(Default)]
+struct AgentScratch {
+    mlp: MlpScratch,
+    d_log_std: Vec<f32>,
+}
+
+/// The agent's and critic's buffers of [`step_grads`], made once per update.
+#[derive(Default)]
+pub(super) struct Scratch {
+    agent: AgentScratch,
+    critic: MlpScratch,
 }
 
 /// The optimiser's current value of the variable `var`.
@@ -128,37 +152,93 @@ pub(super) struct Nets<'a> {
 }
 
 /// One minibatch step's losses and the gradients of every variable of `nets`, into
-/// `totals` (the stats) and the host gradients [`crate::optim::Optimizer::step_host`] takes, at the weights
-/// of the optimiser's host state `h`. Every action entry is continuous (the caller takes the reference path for a layout with a choice). With
-/// `parallel` the critic's forward and backward run on a second thread.
-pub(super) fn step_grads(
+/// `totals` (the stats) and the host gradients [`crate::optim::Optimizer::step_host`]
+/// takes, at the weights of the optimiser's host state `h`; the gradients live in
+/// `scratch` until its next step. Every action entry is continuous (the caller takes the
+/// reference path for a layout with a choice). With `parallel` the critic's forward and
+/// backward run on a second thread.
+pub(super) fn step_grads<'s>(
     nets: &Nets,
     h: &HostState,
     mb: &Minibatch,
     parallel: bool,
     totals: &mut Totals,
-) -> Result<Vec<(TensorId, Vec<f32>)>> {
+    scratch: &'s mut Scratch,
+) -> Result<Vec<(TensorId, &'s [f32])>> {
     let agent = HostMlp::of(&nets.agent, h)?;
     let critic = HostMlp::of(&nets.critic, h)?;
-    std::thread::scope(|scope| {
+    let (policy, value_loss) = std::thread::scope(|scope| -> Result<(PolicyPart, f64)> {
         // The critic's part on a second thread while this one does the agent's: the
-        // two share no sums, so the bits are the same either way.
-        let critic_job = parallel.then(|| scope.spawn(|| value_grads(&critic, mb, nets)));
-        policy_and_grads(nets, &agent, &critic, critic_job, h, mb, totals)
-    })
+        // two share no sums, so the bits are the same either way. Its buffers go with
+        // it and come back with its loss.
+        let critic_job = parallel.then(|| {
+            let (critic, mut buffers) = (&critic, std::mem::take(&mut scratch.critic));
+            scope.spawn(move || {
+                let loss = value_grads(critic, mb, nets, &mut buffers);
+                (buffers, loss)
+            })
+        });
+        let policy = policy_grads(nets, &agent, h, mb, &mut scratch.agent)?;
+        let value_loss = match critic_job {
+            Some(job) => {
+                let (buffers, loss) = job
+                    .join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+                scratch.critic = buffers;
+                loss
+            }
+            None => value_grads(&critic, mb, nets, &mut scratch.critic),
+        };
+        Ok((policy, value_loss))
+    })?;
+    let beta = nets.cfg.entropy_coef;
+    let n = mb.n as f64;
+    let policy_loss = policy.loss * (1.0 / mb.n as f32) as f64;
+    let pl = check_finite("policy_loss", policy_loss as f32)?;
+    let vl = check_finite("value_loss", value_loss as f32)?;
+    check_finite(
+        "loss",
+        (policy_loss + nets.value_coef * value_loss - beta * policy.entropy) as f32,
+    )?;
+    totals.policy_loss += pl as f64;
+    totals.value_loss += vl as f64;
+    totals.entropy += policy.entropy;
+    totals.approx_kl += policy.kl / n;
+    totals.clip_fraction += policy.outside as f64 / n;
+
+    let scratch: &'s Scratch = scratch;
+    let mut grads = Vec::with_capacity(2 * (nets.agent.len() + nets.critic.len()) + 1);
+    for (layers, g) in [
+        (&nets.agent, &scratch.agent.mlp.grads),
+        (&nets.critic, &scratch.critic.grads),
+    ] {
+        for (l, (dw, db)) in layers.iter().zip(g) {
+            grads.push((l.w.id(), &dw[..]));
+            grads.push((l.b.id(), &db[..]));
+        }
+    }
+    grads.push((nets.log_std.id(), &scratch.agent.d_log_std[..]));
+    Ok(grads)
 }
 
-/// The agent's part of [`step_grads`], the critic's from `critic_job` (or computed
-/// here), then the checks and every gradient.
-fn policy_and_grads<'s>(
+/// The agent's sums over a minibatch: the clipped surrogate (summed, not yet averaged),
+/// Σ_b KL estimate, the steps whose ratio left [1 − ε, 1 + ε], and the entropy.
+struct PolicyPart {
+    loss: f64,
+    kl: f64,
+    outside: usize,
+    entropy: f64,
+}
+
+/// The agent's part of [`step_grads`]: its forward, the surrogate and entropy bonus,
+/// and its backward into `s` (the log σ gradient into `s.d_log_std`).
+fn policy_grads(
     nets: &Nets,
     agent: &HostMlp,
-    critic: &HostMlp,
-    critic_job: Option<std::thread::ScopedJoinHandle<'s, CriticGrads>>,
     h: &HostState,
     mb: &Minibatch,
-    totals: &mut Totals,
-) -> Result<Vec<(TensorId, Vec<f32>)>> {
+    s: &mut AgentScratch,
+) -> Result<PolicyPart> {
     let (n, cfg) = (mb.n, nets.cfg);
     let na = agent.layers.last().map_or(0, |l| l.3);
     let raw_log_std = value(h, nets.log_std)?;
@@ -177,12 +257,13 @@ fn policy_and_grads<'s>(
         .unzip();
 
     // The agent: μ_raw [n, na], μ = bound·tanh(μ_raw) or μ_raw.
-    let a_acts = agent.forward(&mb.obs, n);
-    let mu_raw = &a_acts[a_acts.len() - 1];
+    agent.forward(&mb.obs, n, &mut s.mlp);
+    let mu_raw = &s.mlp.acts[s.mlp.acts.len() - 1];
     let eps = cfg.clip as f32;
     let half_log_2pi = 0.5 * (2.0 * std::f32::consts::PI).ln();
     let inv_n = 1.0 / n as f32;
-    let mut d_raw = vec![0.0f32; n * na];
+    let d_raw = &mut s.mlp.dy;
+    d_raw.resize(n * na, 0.0); // every element is written below
     let mut d_log_std = vec![0.0f64; na];
     let (mut policy_loss, mut kl, mut outside) = (0.0f64, 0.0f64, 0usize);
     let mut zs = vec![0.0f32; na];
@@ -233,58 +314,32 @@ fn policy_and_grads<'s>(
     // The entropy bonus −β·mean_b Σ_i (log σ_i + ½ ln 2πe): −β on each log σ_i.
     let half_log_2pi_e = 0.5 * (1.0 + (2.0 * std::f64::consts::PI).ln());
     let entropy: f64 = log_std.iter().map(|&l| l as f64 + half_log_2pi_e).sum();
-    let beta = cfg.entropy_coef;
-
-    // The agent's backward before the critic's part is waited for: the larger share of
-    // the overlap.
-    let a_grads = agent.backward(&mb.obs, &a_acts, d_raw, n);
-    let (c_grads, value_loss) = match critic_job {
-        Some(job) => job
-            .join()
-            .unwrap_or_else(|panic| std::panic::resume_unwind(panic)),
-        None => value_grads(critic, mb, nets),
-    };
-    let policy_loss = policy_loss * inv_n as f64;
-    let pl = check_finite("policy_loss", policy_loss as f32)?;
-    let vl = check_finite("value_loss", value_loss as f32)?;
-    check_finite(
-        "loss",
-        (policy_loss + nets.value_coef * value_loss - beta * entropy) as f32,
-    )?;
-
-    let mut grads = Vec::with_capacity(2 * (nets.agent.len() + nets.critic.len()) + 1);
-    for (layers, g) in [(&nets.agent, a_grads), (&nets.critic, c_grads)] {
-        for (l, (dw, db)) in layers.iter().zip(g) {
-            grads.push((l.w.id(), dw));
-            grads.push((l.b.id(), db));
-        }
-    }
-    let d_ls: Vec<f32> = d_log_std
-        .iter()
-        .zip(&ls_pass)
-        .map(|(&g, &p)| (g as f32 - beta as f32) * p)
-        .collect();
-    grads.push((nets.log_std.id(), d_ls));
-
-    totals.policy_loss += pl as f64;
-    totals.value_loss += vl as f64;
-    totals.entropy += entropy;
-    totals.approx_kl += kl / n as f64;
-    totals.clip_fraction += outside as f64 / n as f64;
-    Ok(grads)
+    let beta = cfg.entropy_coef as f32;
+    s.d_log_std.clear();
+    s.d_log_std.extend(
+        d_log_std
+            .iter()
+            .zip(&ls_pass)
+            .map(|(&g, &p)| (g as f32 - beta) * p),
+    );
+    agent.backward(&mb.obs, n, &mut s.mlp);
+    Ok(PolicyPart {
+        loss: policy_loss,
+        kl,
+        outside,
+        entropy,
+    })
 }
 
-/// Each critic layer's (dW, db) and the value loss over a minibatch: c_v·mean (V − R)²,
-/// or the larger of it and the clipped one's.
-type CriticGrads = (Vec<(Vec<f32>, Vec<f32>)>, f64);
-
-/// The critic's part of [`step_grads`]: V [n, c], its loss and its gradients.
-fn value_grads(critic: &HostMlp, mb: &Minibatch, nets: &Nets) -> CriticGrads {
+/// The critic's part of [`step_grads`]: V [n, c], its loss c_v·mean (V − R)² (or the
+/// larger of it and the clipped one's), returned, and its gradients into `s`.
+fn value_grads(critic: &HostMlp, mb: &Minibatch, nets: &Nets, s: &mut MlpScratch) -> f64 {
     let (n, c, cfg) = (mb.n, nets.c, nets.cfg);
-    let c_acts = critic.forward(&mb.obs, n);
-    let v = &c_acts[c_acts.len() - 1];
+    critic.forward(&mb.obs, n, s);
+    let v = &s.acts[s.acts.len() - 1];
     let scale = (2.0 * nets.value_coef / (n * c) as f64) as f32;
-    let mut dv = vec![0.0f32; n * c];
+    let dv = &mut s.dy;
+    dv.resize(n * c, 0.0); // every element is written below
     let mut value_loss = 0.0f64;
     for e in 0..n * c {
         let diff = v[e] - mb.returns[e];
@@ -309,7 +364,6 @@ fn value_grads(critic: &HostMlp, mb: &Minibatch, nets: &Nets) -> CriticGrads {
             }
         }
     }
-    let value_loss = value_loss / (n * c) as f64;
-    let grads = critic.backward(&mb.obs, &c_acts, dv, n);
-    (grads, value_loss)
+    critic.backward(&mb.obs, n, s);
+    value_loss / (n * c) as f64
 }

@@ -205,14 +205,31 @@ fn the_vector_critic_learns_each_coordinate_apart() {
 }
 
 /// Every variable's gradient of one minibatch step by `path`, with the step's totals.
-fn step_grads(ppo: &Ppo, mb: &Minibatch, path: GradPath) -> (Vec<(String, Vec<f32>)>, Totals) {
+/// The fast path's buffers first hold another step's, of the minibatch `before`: what
+/// a step leaves in them must not reach the next one.
+fn step_grads(
+    ppo: &Ppo,
+    mb: &Minibatch,
+    before: &Minibatch,
+    path: GradPath,
+) -> (Vec<(String, Vec<f32>)>, Totals) {
     let mut totals = Totals::default();
     let mut vars = ppo.agent.params().vars.clone();
     vars.extend(ppo.critic.params().vars.clone());
     let g = match path {
         GradPath::Fast => {
             let (nets, h) = (ppo.fast_nets(), ppo.opt.host_state().unwrap());
-            let grads = fast::step_grads(&nets, &h, mb, false, &mut totals).unwrap();
+            let mut scratch = fast::Scratch::default();
+            fast::step_grads(
+                &nets,
+                &h,
+                before,
+                false,
+                &mut Totals::default(),
+                &mut scratch,
+            )
+            .unwrap();
+            let grads = fast::step_grads(&nets, &h, mb, false, &mut totals, &mut scratch).unwrap();
             assert_eq!(grads.len(), vars.len(), "one gradient per variable");
             vars.iter()
                 .map(|(name, v)| {
@@ -220,7 +237,7 @@ fn step_grads(ppo: &Ppo, mb: &Minibatch, path: GradPath) -> (Vec<(String, Vec<f3
                         .iter()
                         .find(|(id, _)| *id == v.as_tensor().id())
                         .unwrap_or_else(|| panic!("no gradient for {name}"));
-                    (name.clone(), g.clone())
+                    (name.clone(), g.to_vec())
                 })
                 .collect()
         }
@@ -282,8 +299,11 @@ fn the_fast_step_gives_candle_autograds_gradients() {
         };
         let idx: Vec<usize> = (0..64).collect();
         let mb = ppo.minibatch(&idx, &batch, &host);
-        let (want, t_ref) = step_grads(&ppo, &mb, GradPath::Reference);
-        let (got, t_fast) = step_grads(&ppo, &mb, GradPath::Fast);
+        // 40 other steps, in another order: buffers of another size and content.
+        let other: Vec<usize> = (24..64).rev().collect();
+        let before = ppo.minibatch(&other, &batch, &host);
+        let (want, t_ref) = step_grads(&ppo, &mb, &before, GradPath::Reference);
+        let (got, t_fast) = step_grads(&ppo, &mb, &before, GradPath::Fast);
         assert!(
             t_ref.clip_fraction > 0.1 && t_ref.clip_fraction < 0.9,
             "{}",
