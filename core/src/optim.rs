@@ -427,7 +427,7 @@ mod tests {
     #[test]
     fn the_host_step_equals_the_tensor_step_to_the_bit() {
         // 0: tensor ops, 1: the host step, 2: a HostState's steps, committed at the end,
-        // 3: the same on two threads (w on this one, b on the second).
+        // 3: the same on two threads of a pool (w and b side by side).
         for config in [OptimizerConfig::RMSPROP_TF1, OptimizerConfig::ADAM_TF1] {
             let run = |mode: usize| -> Vec<Vec<f32>> {
                 let w = Var::from_slice(
@@ -498,7 +498,11 @@ mod tests {
             let host = run(1);
             assert_eq!(run(0), host, "{config:?}");
             assert_eq!(run(2), host, "{config:?}");
-            assert_eq!(run(3), host, "{config:?}");
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap();
+            assert_eq!(pool.install(|| run(3)), host, "{config:?}");
         }
     }
 
@@ -528,7 +532,7 @@ mod tests {
         assert_eq!(v.as_tensor().to_vec1::<f32>().unwrap(), vec![1.0]);
         assert_eq!(opt.steps(), 0);
 
-        // On two threads (a on this one, b on the second): a gradient whose square
+        // On two threads (a and b side by side): a gradient whose square
         // overflows f32 in b's slot (f32::MAX² ≈ 1.2e77 is finite in the f64 norm) is
         // refused and named; a NaN gradient on either thread makes the norm NaN.
         let (a, b) = (

@@ -250,6 +250,20 @@ impl Ppo {
         Ok(())
     }
 
+    /// The pool of the hand-written steps' threads when there are two or more; none
+    /// (one thread, the same bits) on the reference path or when the OS refuses threads.
+    fn step_pool(&self) -> Option<rayon::ThreadPool> {
+        let threads = super::fused::threads_for(self.threads);
+        if !self.fast() || threads < 2 {
+            return None;
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .map_err(|e| tracing::warn!("PPO's update runs on one thread: {e}"))
+            .ok()
+    }
+
     /// The networks as the hand-written step takes them.
     fn fast_nets(&self) -> fast::Nets<'_> {
         fast::Nets {
@@ -370,15 +384,26 @@ impl Ppo {
         // and slots, committed once after the passes (dropped on an error).
         let mut opt_host = self.fast().then(|| self.opt.host_state()).transpose()?;
         let mut scratch = fast::Scratch::default();
-        for _ in 0..self.cfg.epochs {
-            order.shuffle(&mut self.rng);
-            for j in 0..m {
-                // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
-                let idx = &order[j * b / m..(j + 1) * b / m];
-                let mb = self.minibatch(idx, batch, &host);
-                let host = opt_host.as_mut().map(|h| (h, &mut scratch));
-                self.step(&mb, host, &mut totals)?;
+        let pool = self.step_pool();
+        let mut passes = || -> Result<()> {
+            for _ in 0..self.cfg.epochs {
+                order.shuffle(&mut self.rng);
+                for j in 0..m {
+                    // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
+                    let idx = &order[j * b / m..(j + 1) * b / m];
+                    let mb = self.minibatch(idx, batch, &host);
+                    let host = opt_host.as_mut().map(|h| (h, &mut scratch));
+                    self.step(&mb, host, &mut totals)?;
+                }
             }
+            Ok(())
+        };
+        // With two threads or more, the hand-written steps run on a pool of that many
+        // made for this update: each step hands its halves to the pool's threads instead
+        // of spawning one (~23 µs a spawn here, two a step of ~0.5 ms).
+        match pool {
+            Some(pool) => pool.install(passes)?,
+            None => passes()?,
         }
         if let Some(h) = opt_host {
             self.opt.commit_host(h)?;

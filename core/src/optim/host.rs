@@ -257,7 +257,8 @@ impl Optimizer {
     }
 
     /// [`Optimizer::step_host`] with the variables split into two runs of about equal
-    /// size when `threads` > 1, the later run on a second thread: the same bits (every
+    /// size when `threads` > 1, the two run side by side by `rayon::join` (on the pool
+    /// whose `install` calls this, else on rayon's global pool): the same bits (every
     /// element's arithmetic is its own, and the squares of each variable are summed as
     /// before and added in the optimiser's order).
     pub fn step_host_on<G: AsRef<[f32]> + Sync>(
@@ -306,31 +307,15 @@ impl Optimizer {
             let bad = norm.is_finite().then(|| apply_all(step_for(norm), first));
             (norm, bad.flatten())
         } else {
-            std::thread::scope(|scope| {
-                let (to_main, from_worker) = std::sync::mpsc::channel();
-                let (to_worker, from_main) = std::sync::mpsc::channel::<Option<StepAt>>();
-                let worker = scope.spawn(move || {
-                    // The main thread waits on these sums; it hangs up only by panicking.
-                    let _ = to_main.send(squares(later));
-                    from_main
-                        .recv()
-                        .ok()
-                        .flatten()
-                        .and_then(|s| apply_all(s, later))
-                });
-                let mut sq = squares(first);
-                // An empty list stands in for a worker that panicked; its join rethrows.
-                sq.extend(from_worker.recv().unwrap_or_default());
-                let norm = norm_of(&sq);
-                let step = norm.is_finite().then(|| step_for(norm));
-                // The worker holds its receiver until it has read this.
-                let _ = to_worker.send(step);
-                let mine = step.and_then(|s| apply_all(s, first));
-                let theirs = worker
-                    .join()
-                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-                (norm, mine.or(theirs))
-            })
+            let (mut sq, sq_later) = rayon::join(|| squares(first), || squares(later));
+            sq.extend(sq_later);
+            let norm = norm_of(&sq);
+            let bad = norm.is_finite().then(|| {
+                let step = step_for(norm);
+                let (a, b) = rayon::join(|| apply_all(step, first), || apply_all(step, later));
+                a.or(b)
+            });
+            (norm, bad.flatten())
         };
         if !norm.is_finite() {
             return Err(CoreError::NonFinite(format!("the gradient norm is {norm}")));

@@ -156,7 +156,8 @@ pub(super) struct Nets<'a> {
 /// takes, at the weights of the optimiser's host state `h`; the gradients live in
 /// `scratch` until its next step. Every action entry is continuous (the caller takes the
 /// reference path for a layout with a choice). With `parallel` the critic's forward and
-/// backward run on a second thread.
+/// backward run beside the agent's by `rayon::join` (on the pool whose `install` calls
+/// this).
 pub(super) fn step_grads<'s>(
     nets: &Nets,
     h: &HostState,
@@ -167,30 +168,16 @@ pub(super) fn step_grads<'s>(
 ) -> Result<Vec<(TensorId, &'s [f32])>> {
     let agent = HostMlp::of(&nets.agent, h)?;
     let critic = HostMlp::of(&nets.critic, h)?;
-    let (policy, value_loss) = std::thread::scope(|scope| -> Result<(PolicyPart, f64)> {
-        // The critic's part on a second thread while this one does the agent's: the
-        // two share no sums, so the bits are the same either way. Its buffers go with
-        // it and come back with its loss.
-        let critic_job = parallel.then(|| {
-            let (critic, mut buffers) = (&critic, std::mem::take(&mut scratch.critic));
-            scope.spawn(move || {
-                let loss = value_grads(critic, mb, nets, &mut buffers);
-                (buffers, loss)
-            })
-        });
-        let policy = policy_grads(nets, &agent, h, mb, &mut scratch.agent)?;
-        let value_loss = match critic_job {
-            Some(job) => {
-                let (buffers, loss) = job
-                    .join()
-                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-                scratch.critic = buffers;
-                loss
-            }
-            None => value_grads(&critic, mb, nets, &mut scratch.critic),
-        };
-        Ok((policy, value_loss))
-    })?;
+    let (agent_buffers, critic_buffers) = (&mut scratch.agent, &mut scratch.critic);
+    let mut policy_part = || policy_grads(nets, &agent, h, mb, agent_buffers);
+    let mut value_part = || value_grads(&critic, mb, nets, critic_buffers);
+    // The two share no sums, so the bits are the same either way.
+    let (policy, value_loss) = if parallel {
+        rayon::join(policy_part, value_part)
+    } else {
+        (policy_part(), value_part())
+    };
+    let policy = policy?;
     let beta = nets.cfg.entropy_coef;
     let n = mb.n as f64;
     let policy_loss = policy.loss * (1.0 / mb.n as f32) as f64;
