@@ -9,6 +9,7 @@ mod host;
 
 use crate::{CoreError, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
+pub(crate) use host::join_if;
 use host::to_host;
 pub use host::HostState;
 use serde::{Deserialize, Serialize};

@@ -191,6 +191,20 @@ fn apply_all(at: StepAt, vars: &mut [VarStep]) -> Option<usize> {
     None
 }
 
+/// `(a(), b())`: side by side by `rayon::join` when `parallel` (on the pool whose
+/// `install` runs the caller, else on rayon's global pool), else in turn on this thread.
+pub(crate) fn join_if<RA: Send, RB: Send>(
+    parallel: bool,
+    a: impl FnOnce() -> RA + Send,
+    b: impl FnOnce() -> RB + Send,
+) -> (RA, RB) {
+    if parallel {
+        rayon::join(a, b)
+    } else {
+        (a(), b())
+    }
+}
+
 /// Where to split `vars` into two runs of about equal elements: after the first
 /// variable that takes the running count to half or more.
 fn half_way(vars: &[VarStep]) -> usize {
@@ -302,21 +316,16 @@ impl Optimizer {
             vars.len()
         };
         let (first, later) = vars.split_at_mut(split);
-        let (norm, bad) = if later.is_empty() {
-            let norm = norm_of(&squares(first));
-            let bad = norm.is_finite().then(|| apply_all(step_for(norm), first));
-            (norm, bad.flatten())
-        } else {
-            let (mut sq, sq_later) = rayon::join(|| squares(first), || squares(later));
-            sq.extend(sq_later);
-            let norm = norm_of(&sq);
-            let bad = norm.is_finite().then(|| {
-                let step = step_for(norm);
-                let (a, b) = rayon::join(|| apply_all(step, first), || apply_all(step, later));
-                a.or(b)
-            });
-            (norm, bad.flatten())
-        };
+        let two = !later.is_empty();
+        let (mut sq, sq_later) = join_if(two, || squares(first), || squares(later));
+        sq.extend(sq_later);
+        let norm = norm_of(&sq);
+        let bad = norm.is_finite().then(|| {
+            let step = step_for(norm);
+            let (a, b) = join_if(two, || apply_all(step, first), || apply_all(step, later));
+            a.or(b)
+        });
+        let bad = bad.flatten();
         if !norm.is_finite() {
             return Err(CoreError::NonFinite(format!("the gradient norm is {norm}")));
         }

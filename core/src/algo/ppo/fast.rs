@@ -12,7 +12,7 @@ use crate::algo::check_finite;
 use crate::algo::dense::matmul;
 use crate::config::{HeadConfig, PpoConfig};
 use crate::nets::Linear;
-use crate::optim::HostState;
+use crate::optim::{join_if, HostState};
 use crate::Result;
 use candle_core::{Tensor, TensorId};
 
@@ -169,14 +169,12 @@ pub(super) fn step_grads<'s>(
     let agent = HostMlp::of(&nets.agent, h)?;
     let critic = HostMlp::of(&nets.critic, h)?;
     let (agent_buffers, critic_buffers) = (&mut scratch.agent, &mut scratch.critic);
-    let mut policy_part = || policy_grads(nets, &agent, h, mb, agent_buffers);
-    let mut value_part = || value_grads(&critic, mb, nets, critic_buffers);
     // The two share no sums, so the bits are the same either way.
-    let (policy, value_loss) = if parallel {
-        rayon::join(policy_part, value_part)
-    } else {
-        (policy_part(), value_part())
-    };
+    let (policy, value_loss) = join_if(
+        parallel,
+        || policy_grads(nets, &agent, h, mb, agent_buffers),
+        || value_grads(&critic, mb, nets, critic_buffers),
+    );
     let policy = policy?;
     let beta = nets.cfg.entropy_coef;
     let n = mb.n as f64;
