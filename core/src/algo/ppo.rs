@@ -257,8 +257,9 @@ impl Ppo {
         if !self.fast() || threads < 2 {
             return None;
         }
+        // Every hand-off is two-way, so a third thread would only wait.
         rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
+            .num_threads(2)
             .build()
             .map_err(|e| tracing::warn!("PPO's update runs on one thread: {e}"))
             .ok()
@@ -398,9 +399,9 @@ impl Ppo {
             }
             Ok(())
         };
-        // With two threads or more, the hand-written steps run on a pool of that many
-        // made for this update: each step hands its halves to the pool's threads instead
-        // of spawning one (~23 µs a spawn here, two a step of ~0.5 ms).
+        // With two threads or more, the hand-written steps run on a pool of two made
+        // for this update: each step hands its halves to the pool's threads instead of
+        // spawning one (~23 µs a spawn here, two a step of ~0.5 ms).
         match pool {
             Some(pool) => pool.install(passes)?,
             None => passes()?,
