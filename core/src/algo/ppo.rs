@@ -232,14 +232,15 @@ impl Ppo {
         &mut self,
         mb: &Minibatch,
         host: Option<(&mut HostState, &mut fast::Scratch)>,
+        parallel: bool,
         totals: &mut Totals,
     ) -> Result<()> {
         totals.grad_norm += match host {
             Some((h, scratch)) => {
                 let nets = self.fast_nets();
-                let threads = super::fused::threads_for(self.threads);
-                let grads = fast::step_grads(&nets, h, mb, threads > 1, totals, scratch)?;
-                self.opt.step_host_on(h, &grads, threads)?
+                let grads = fast::step_grads(&nets, h, mb, parallel, totals, scratch)?;
+                self.opt
+                    .step_host_on(h, &grads, if parallel { 2 } else { 1 })?
             }
             None => {
                 let grads = self.reference_grads(mb, totals)?;
@@ -386,6 +387,8 @@ impl Ppo {
         let mut opt_host = self.fast().then(|| self.opt.host_state()).transpose()?;
         let mut scratch = fast::Scratch::default();
         let pool = self.step_pool();
+        // Two-way hand-offs exactly when there is a pool to take them.
+        let parallel = pool.is_some();
         let mut passes = || -> Result<()> {
             for _ in 0..self.cfg.epochs {
                 order.shuffle(&mut self.rng);
@@ -394,7 +397,7 @@ impl Ppo {
                     let idx = &order[j * b / m..(j + 1) * b / m];
                     let mb = self.minibatch(idx, batch, &host);
                     let host = opt_host.as_mut().map(|h| (h, &mut scratch));
-                    self.step(&mb, host, &mut totals)?;
+                    self.step(&mb, host, parallel, &mut totals)?;
                 }
             }
             Ok(())
