@@ -3,7 +3,8 @@ weights (safetensors): one forward pass for a batch of observations (one per env
 They follow the `architecture` text each weights file carries and are held to the
 Rust actors' policies by tests/python/test_saver_actor.py (through `saver act`).
 
-gaussian-mlp (A2C, SAVER): mu = MLP(obs) (256-128-64, ReLU), bounded by
+gaussian-mlp (A2C, SAVER, PPO): mu = MLP(obs) (the run's hidden widths, 256-128-64 by
+default, ReLU; as many agent.l{i} layers as the weights hold), bounded by
 mu_bound * tanh when mu_bound is finite; log_std = clamp(agent.log_std); continuous
 action = mu + exp(log_std) * N(0, 1); a choice ~ softmax(logits) as a one-hot.
 Payload per step: mu then log_std.
@@ -23,7 +24,7 @@ from typing import Any, Optional, Tuple, Union
 
 import numpy as np
 
-TRUNK = 3  # hidden layers of the gaussian MLP
+MAX_HIDDEN_LAYERS = 8  # the most hidden layers a run may have (the Rust actor's limit)
 EMBED = 128  # cosine embedding size of the quantile network
 
 
@@ -33,11 +34,22 @@ class Gaussian:
     def __init__(self, tensors: dict, layout, params: dict):
         self.c, self.ch = layout.continuous, layout.choices
         self.layers = []
-        for i in range(TRUNK):
+        while f"agent.l{len(self.layers)}.w" in tensors:
+            if len(self.layers) == MAX_HIDDEN_LAYERS:
+                raise ValueError(f"the weights have more than {MAX_HIDDEN_LAYERS} hidden layers")
+            i = len(self.layers)
             w, b = tensors[f"agent.l{i}.w"], tensors[f"agent.l{i}.b"]
             self.layers.append((w.astype(np.float32), b.astype(np.float32)))
+        self.hidden = len(self.layers)
+        if self.hidden == 0:
+            raise ValueError("the weights lack agent.l0.w")
         self.layers.append((tensors["agent.mu.w"].astype(np.float32), tensors["agent.mu.b"].astype(np.float32)))
-        if self.layers[0][0].shape[0] != layout.obs_dim or self.layers[-1][0].shape[1] != self.c + self.ch:
+        fan_in = layout.obs_dim
+        for w, b in self.layers:
+            if w.ndim != 2 or w.shape[0] != fan_in or b.shape != (w.shape[1],):
+                raise ValueError("the weights do not fit the env layout")
+            fan_in = w.shape[1]
+        if fan_in != self.c + self.ch:
             raise ValueError("the weights do not fit the env layout")
         bound = params.get("mu_bound", math.inf)
         self.mu_bound = None if not math.isfinite(bound) else np.float32(bound)
@@ -52,7 +64,7 @@ class Gaussian:
         h = np.asarray(obs, dtype=np.float32)
         for i, (w, b) in enumerate(self.layers):
             h = h @ w + b
-            if i < TRUNK:
+            if i < self.hidden:
                 np.maximum(h, 0.0, out=h)
         if self.mu_bound is not None:
             h = self.mu_bound * np.tanh(h)

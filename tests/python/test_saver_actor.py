@@ -119,6 +119,9 @@ def test_numpy_policies_act_as_the_rust_ones():
         ("bounded-angle", ["--env", "angle", "--dim", "4", "--mu-bound", "1", "--log-std-min", "-4.6",
                            "--log-std-max", "0"]),
         ("a2c-select", ["--env", "select", "--dim", "3"]),
+        # Other hidden widths: both actors read them from the weights.
+        ("ppo-narrow-angle", ["--algo", "ppo", "--env", "angle", "--dim", "6", "--hidden", "64,64"]),
+        ("a2c-deep-select", ["--env", "select", "--dim", "2", "--hidden", "9,17,5,33"]),
         ("qrrl-point", ["--algo", "qrrl", "--env", "point", "--dim", "3"]),
     ]
     rng = np.random.default_rng(0)

@@ -69,8 +69,8 @@ fn recommend(c: &mut RunConfig) {
 /// The shared trunk with the mean and value heads, trained.
 fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let l = config.env.layout();
-    let [h0, h1, h2] = crate::nets::TRUNK;
-    3.0 * super::mlp_flops(b + t, &[l.obs_dim, h0, h1, h2, l.mu_dim() + 1])
+    let dims = super::mlp_dims(l.obs_dim, &config.hidden, l.mu_dim() + 1);
+    3.0 * super::mlp_flops(b + t, &dims)
 }
 
 fn build_a2c(
@@ -86,7 +86,7 @@ impl A2c {
     pub fn new(config: &RunConfig, dev: &Device) -> Result<Self> {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
-        let agent = Agent::new(&layout, config.head, true, &mut rng, dev)?;
+        let agent = Agent::new(&layout, config.head, &config.hidden, true, &mut rng, dev)?;
         let opt = super::run_optimizer(agent.params().vars.clone(), config, 1)?;
         Ok(Self {
             agent,

@@ -118,10 +118,13 @@ fn check(c: &RunConfig) -> Result<()> {
 /// step once, then one agent forward for the diagnostics.
 fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let l = config.env.layout();
-    let [h0, h1, h2] = crate::nets::TRUNK;
     let c = if config.ppo.vector { l.aligned_dim } else { 1 };
-    let agent = super::mlp_flops(b, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
-    let critic = |n| super::mlp_flops(n, &[l.obs_dim, h0, h1, h2, c]);
+    let (agent, critic) = (
+        super::mlp_dims(l.obs_dim, &config.hidden, l.mu_dim()),
+        super::mlp_dims(l.obs_dim, &config.hidden, c),
+    );
+    let agent = super::mlp_flops(b, &agent);
+    let critic = |n| super::mlp_flops(n, &critic);
     critic(b + t) + config.ppo.epochs as f64 * 3.0 * (agent + critic(b)) + agent
 }
 
@@ -168,13 +171,13 @@ impl Ppo {
     pub fn new(config: &RunConfig, dev: &Device) -> Result<Self> {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
-        let agent = Agent::new(&layout, config.head, false, &mut rng, dev)?;
+        let agent = Agent::new(&layout, config.head, &config.hidden, false, &mut rng, dev)?;
         let c = if config.ppo.vector {
             layout.aligned_dim
         } else {
             1
         };
-        let critic = Critic::with_sizes(layout.obs_dim, c, &mut rng, dev)?;
+        let critic = Critic::with_sizes(layout.obs_dim, c, &config.hidden, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
         let batch = config.batch_transitions() as usize;

@@ -100,8 +100,7 @@ fn check(c: &RunConfig) -> Result<()> {
 /// critic.
 fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let (l, k) = (&config.env.layout(), config.saver.quantiles);
-    let [h0, h1, h2] = crate::nets::TRUNK;
-    let critic = 3.0 * super::mlp_flops(b + t, &[l.obs_dim, h0, h1, h2, 1]);
+    let critic = 3.0 * super::mlp_flops(b + t, &super::mlp_dims(l.obs_dim, &config.hidden, 1));
     let (policy, embed) = super::quantile_net_flops(b, k, l.obs_dim, l.continuous);
     critic + 3.0 * policy + 2.0 * embed
 }
@@ -138,7 +137,7 @@ impl Qrrl {
         } else {
             1
         };
-        let critic = Critic::with_sizes(layout.obs_dim, values, &mut rng, dev)?;
+        let critic = Critic::with_sizes(layout.obs_dim, values, &config.hidden, &mut rng, dev)?;
         let mut vars = net_params.vars.clone();
         vars.extend(critic.params().vars.clone());
         Ok(Self {

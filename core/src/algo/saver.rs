@@ -140,8 +140,8 @@ impl Saver {
     pub fn new(config: &RunConfig, pcpn: Pcpn, dev: &Device) -> Result<Self> {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
-        let agent = Agent::new(&layout, config.head, false, &mut rng, dev)?;
-        let critic = Critic::new(&layout, &mut rng, dev)?;
+        let agent = Agent::new(&layout, config.head, &config.hidden, false, &mut rng, dev)?;
+        let critic = Critic::new(&layout, &config.hidden, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
         let batch = config.batch_transitions() as usize;

@@ -10,10 +10,9 @@
 //! on σ; on a custom env, the saturation wall, a PCPN that keeps learning on the
 //! policy's steps, a floor on σ and four optimiser steps per batch.
 
-use super::mlp_flops;
+use super::{mlp_dims, mlp_flops};
 use crate::config::{HeadConfig, OptimizerKind, RunConfig};
 use crate::env::EnvKind;
-use crate::nets::TRUNK;
 
 /// SAVER's learning rate by default (with Adam; the paper's is 0.01 with RMSProp).
 /// 3e-4 before: at d = 16 it left SAVER at a mean length of 1000 for 2.56 M steps,
@@ -144,9 +143,9 @@ pub(crate) fn recommend(c: &mut RunConfig) {
 /// B steps again.
 pub(crate) fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let (l, k) = (&config.env.layout(), config.saver.quantiles);
-    let [h0, h1, h2] = TRUNK;
-    let agent = |rows| mlp_flops(rows, &[l.obs_dim, h0, h1, h2, l.mu_dim()]);
-    let critic = |rows| mlp_flops(rows, &[l.pcpn_input_dim(), h0, h1, h2, l.aligned_dim]);
+    let h = &config.hidden;
+    let agent = |rows| mlp_flops(rows, &mlp_dims(l.obs_dim, h, l.mu_dim()));
+    let critic = |rows| mlp_flops(rows, &mlp_dims(l.pcpn_input_dim(), h, l.aligned_dim));
     let (pcpn, embed) = super::quantile_net_flops(b, k, l.pcpn_input_dim(), l.aligned_dim);
     let pass = |rows| 3.0 * (agent(rows) + critic(rows));
     if config.saver.one_step(b) {

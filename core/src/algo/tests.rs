@@ -225,22 +225,33 @@ fn saver_update_leaves_the_pcpn_bit_identical_and_moves_agent_and_critic() {
     }
 }
 
+/// The actor's host forward equals the learner's network, at the paper's widths and at
+/// others (the actor reads the widths from the weights).
 #[test]
 fn acting_policy_equals_the_training_network() {
     let bounded = crate::nets::HeadConfig {
         mu_bound: Some(1.0),
         log_std_bounds: Some((-3.0, -0.5)),
     };
-    for (spec, head) in [
+    let paper = &crate::config::PAPER_HIDDEN[..];
+    for (spec, head, hidden) in [
         (
             EnvSpec::new(EnvKind::Angle, 4).unwrap(),
             crate::nets::HeadConfig::FAITHFUL,
+            paper,
         ),
-        (EnvSpec::new(EnvKind::Select, 5).unwrap(), bounded),
-        (EnvSpec::new(EnvKind::Arm, 2).unwrap(), bounded),
+        (EnvSpec::new(EnvKind::Select, 5).unwrap(), bounded, paper),
+        (EnvSpec::new(EnvKind::Arm, 2).unwrap(), bounded, paper),
+        (EnvSpec::new(EnvKind::Angle, 6).unwrap(), bounded, &[64, 64]),
+        (EnvSpec::new(EnvKind::Select, 2).unwrap(), bounded, &[7]),
+        (
+            EnvSpec::new(EnvKind::Arm, 2).unwrap(),
+            bounded,
+            &[32, 5, 16, 9],
+        ),
     ] {
         let l = spec.layout();
-        let agent = Agent::new(&l, head, true, &mut rng_for(3, 1), &Device::Cpu).unwrap();
+        let agent = Agent::new(&l, head, hidden, true, &mut rng_for(3, 1), &Device::Cpu).unwrap();
         let weights = PolicyWeights {
             version: 7,
             tensors: crate::checkpoint::to_named_all(&agent.params().tensors().unwrap()).unwrap(),
@@ -260,6 +271,38 @@ fn acting_policy_equals_the_training_network() {
                 assert!((a - b).abs() < 1e-5, "{spec}: {mu:?} vs {w:?}");
             }
         }
+    }
+}
+
+/// Every algorithm builds its networks at the run's `hidden` widths: the published
+/// agent has one `agent.l{i}` per width, of that width, and an update is finite and
+/// moves it.
+#[test]
+fn every_algorithm_trains_at_other_hidden_widths() {
+    let spec = EnvSpec::new(EnvKind::Point, 3).unwrap();
+    let l = spec.layout();
+    for algo in [Algo::A2c, Algo::Saver, Algo::Ppo, Algo::Qrrl] {
+        let mut config = recommended(&spec, algo, 1);
+        config.hidden = vec![16, 8];
+        validate(&config).unwrap();
+        let pcpn = algo.has_pcpn().then(|| random_pcpn(&l, DType::F32));
+        let mut a = build(&config, pcpn, &Device::Cpu).unwrap();
+        let before = a.policy_tensors().unwrap();
+        if algo != Algo::Qrrl {
+            // (QRRL's policy is the PCPN-shaped quantile net; its critic has the widths.)
+            let width = |name: &str| {
+                before
+                    .iter()
+                    .find(|t| t.name == name)
+                    .map(|t| t.shape.clone())
+            };
+            assert_eq!(width("agent.l0.w"), Some(vec![l.obs_dim, 16]), "{algo:?}");
+            assert_eq!(width("agent.l1.w"), Some(vec![16, 8]), "{algo:?}");
+            assert_eq!(width("agent.l2.w"), None, "{algo:?}");
+        }
+        let stats = a.update(&small_batch(&l)).unwrap();
+        assert!(stats.values.iter().all(|(_, v)| v.is_finite()), "{algo:?}");
+        assert_ne!(before, a.policy_tensors().unwrap(), "{algo:?}");
     }
 }
 
@@ -294,7 +337,16 @@ fn a2c_bootstraps_at_a_timeout_from_the_observation_reached() {
         a2c.update(batch).unwrap().get("value_loss").unwrap()
     };
     let mut rng = rng_for(0, streams::INIT);
-    let agent = Agent::new(&l, HeadConfig::FAITHFUL, true, &mut rng, &Device::Cpu).unwrap();
+    let hidden = crate::config::PAPER_HIDDEN;
+    let agent = Agent::new(
+        &l,
+        HeadConfig::FAITHFUL,
+        &hidden,
+        true,
+        &mut rng,
+        &Device::Cpu,
+    )
+    .unwrap();
     let v = |rows: &[f32]| -> Vec<f32> {
         let x = Tensor::from_slice(rows, (rows.len() / 2, 2), &Device::Cpu).unwrap();
         agent.forward(&x).unwrap().value.unwrap().to_vec1().unwrap()

@@ -124,6 +124,21 @@ fn one() -> f64 {
     1.0
 }
 
+/// Hidden widths of the agent's trunk and of the critics by default: the paper's
+/// (docs/ALGORITHM.md §3).
+pub const PAPER_HIDDEN: [usize; 3] = [256, 128, 64];
+/// Most hidden layers a run (or a weights file an actor reads) may have.
+pub const MAX_HIDDEN_LAYERS: usize = 8;
+/// Widest hidden layer a run may have.
+pub const MAX_HIDDEN_WIDTH: usize = 4096;
+/// Most values the agent's weights may hold: they travel to every actor in one
+/// message of at most 64 MiB.
+pub const MAX_AGENT_WEIGHTS: usize = 8 << 20;
+
+fn paper_hidden() -> Vec<usize> {
+    PAPER_HIDDEN.to_vec()
+}
+
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
 pub const MU_RAW_LIMIT: f64 = 2.0;
 
@@ -195,6 +210,10 @@ pub struct RunConfig {
     pub env: EnvSpec,
     /// Bounds of the policy's μ and log σ (the paper: none).
     pub head: HeadConfig,
+    /// Hidden widths of the agent's trunk and of each critic, ReLU after each (the
+    /// paper's 256, 128, 64; a config.toml written before it reads as those).
+    #[serde(default = "paper_hidden")]
+    pub hidden: Vec<usize>,
     /// SAVER constants.
     pub saver: SaverConfig,
     /// PPO constants (a config.toml written before PPO existed reads as the defaults).
@@ -237,6 +256,7 @@ impl RunConfig {
             lr_decay: false,
             grad_clip: None,
             head: HeadConfig::FAITHFUL,
+            hidden: paper_hidden(),
             // The paper's envs stop at 1000; the bandit is one step long.
             max_episode_steps: env
                 .kind()
@@ -331,6 +351,7 @@ impl RunConfig {
                 );
             }
         }
+        self.check_hidden()?;
         if self.max_episode_steps == 0 {
             return bad("max_episode_steps", "must be >= 1".into());
         }
@@ -478,6 +499,35 @@ impl RunConfig {
     /// Async mode's policy lag (0 in sync mode, where every rollout is current).
     pub fn lag_limit(&self) -> u64 {
         self.max_lag.unwrap_or(0)
+    }
+
+    /// `hidden`: 1 to [`MAX_HIDDEN_LAYERS`] widths in 1..=[`MAX_HIDDEN_WIDTH`], and an
+    /// agent whose weights fit one weights message.
+    fn check_hidden(&self) -> Result<()> {
+        let bad = |why: String| Err(CoreError::Config(format!("hidden: {why}")));
+        let h = &self.hidden;
+        if !(1..=MAX_HIDDEN_LAYERS).contains(&h.len()) {
+            return bad(format!(
+                "{h:?} has {} layers; give 1 to {MAX_HIDDEN_LAYERS} widths",
+                h.len()
+            ));
+        }
+        if let Some(w) = h.iter().find(|w| !(1..=MAX_HIDDEN_WIDTH).contains(*w)) {
+            return bad(format!("width {w} is not in 1..={MAX_HIDDEN_WIDTH}"));
+        }
+        let l = self.env.layout();
+        let dims: Vec<usize> = std::iter::once(l.obs_dim.max(l.pcpn_input_dim()))
+            .chain(h.iter().copied())
+            .chain([l.mu_dim().max(l.aligned_dim) + 1])
+            .collect();
+        let weights: usize = dims.windows(2).map(|w| (w[0] + 1) * w[1]).sum();
+        if weights > MAX_AGENT_WEIGHTS {
+            return bad(format!(
+                "{h:?} makes a network of {weights} weights in this env, over the \
+                 {MAX_AGENT_WEIGHTS} that fit one weights message"
+            ));
+        }
+        Ok(())
     }
 
     /// Hash of the config (sha256 of its JSON), so peers can tell they agree.

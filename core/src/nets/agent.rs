@@ -1,7 +1,8 @@
-//! The agent: obs → 256 → 128 → 64 → linear μ, a state-independent trainable log σ
-//! (initialised to −1), and for A2C a value head 64 → 1 on the shared trunk.
+//! The agent: obs → hidden layers (256 → 128 → 64 by default) → linear μ, a
+//! state-independent trainable log σ (initialised to −1), and for A2C a value head
+//! → 1 on the shared trunk.
 
-use super::{mlp_forward, Linear, ParamSet, TRUNK};
+use super::{mlp_forward, Linear, ParamSet};
 use crate::config::HeadConfig;
 use crate::env::EnvLayout;
 use crate::rng::SaverRng;
@@ -13,13 +14,13 @@ pub const LOG_STD_INIT: f32 = -1.0;
 
 /// The agent network (and, for A2C, its value head).
 pub struct Agent {
-    /// obs → 256 → 128 → 64, ReLU after each.
+    /// obs → the hidden widths, ReLU after each.
     trunk: Vec<Linear>,
-    /// 64 → μ (continuous means, then choice logits).
+    /// Last hidden layer → μ (continuous means, then choice logits).
     mu: Linear,
     /// [continuous]: log σ, shared by all states.
     log_std: Tensor,
-    /// 64 → 1, A2C only.
+    /// Last hidden layer → 1, A2C only.
     value: Option<Linear>,
     /// Output bounds.
     head: HeadConfig,
@@ -40,10 +41,12 @@ pub struct AgentOut {
 }
 
 impl Agent {
-    /// A freshly initialised agent; `with_value` adds the A2C value head.
+    /// A freshly initialised agent with `hidden` widths (the config's `hidden`);
+    /// `with_value` adds the A2C value head.
     pub fn new(
         layout: &EnvLayout,
         head: HeadConfig,
+        hidden: &[usize],
         with_value: bool,
         rng: &mut SaverRng,
         dev: &Device,
@@ -51,7 +54,7 @@ impl Agent {
         let mut params = ParamSet::default();
         let mut trunk = Vec::new();
         let mut fan_in = layout.obs_dim;
-        for (i, &h) in TRUNK.iter().enumerate() {
+        for (i, &h) in hidden.iter().enumerate() {
             trunk.push(params.linear(&format!("agent.l{i}"), fan_in, h, rng, dev)?);
             fan_in = h;
         }

@@ -1,7 +1,8 @@
-//! The critics: SAVER's vector critic x = [obs, μ, log σ] → 256 → 128 → 64 → d (a value
-//! per state-aligned dimension), and standalone QRRL's obs → 256 → 128 → 64 → 1.
+//! The critics: SAVER's vector critic x = [obs, μ, log σ] → hidden → d (a value per
+//! state-aligned dimension), and standalone QRRL's and PPO's obs → hidden → 1 (or d);
+//! the hidden widths are the run's (256 → 128 → 64 by default).
 
-use super::{mlp_forward, Linear, ParamSet, TRUNK};
+use super::{mlp_forward, Linear, ParamSet};
 use crate::env::EnvLayout;
 use crate::rng::SaverRng;
 use crate::Result;
@@ -9,29 +10,42 @@ use candle_core::{Device, Tensor};
 
 /// The vector critic V(o, μ, log σ) ∈ R^d.
 pub struct Critic {
-    /// x → 256 → 128 → 64 (ReLU) → d (linear).
+    /// x → the hidden widths (ReLU) → d (linear).
     layers: Vec<Linear>,
     /// Trainable variables, named `critic.*`.
     params: ParamSet,
 }
 
 impl Critic {
-    /// A freshly initialised SAVER critic.
-    pub fn new(layout: &EnvLayout, rng: &mut SaverRng, dev: &Device) -> Result<Self> {
-        Self::with_sizes(layout.pcpn_input_dim(), layout.aligned_dim, rng, dev)
+    /// A freshly initialised SAVER critic with `hidden` widths.
+    pub fn new(
+        layout: &EnvLayout,
+        hidden: &[usize],
+        rng: &mut SaverRng,
+        dev: &Device,
+    ) -> Result<Self> {
+        Self::with_sizes(
+            layout.pcpn_input_dim(),
+            layout.aligned_dim,
+            hidden,
+            rng,
+            dev,
+        )
     }
 
-    /// A freshly initialised critic of `input` inputs and `outputs` values.
+    /// A freshly initialised critic of `input` inputs, `hidden` widths and `outputs`
+    /// values.
     pub fn with_sizes(
         input: usize,
         outputs: usize,
+        hidden: &[usize],
         rng: &mut SaverRng,
         dev: &Device,
     ) -> Result<Self> {
         let mut params = ParamSet::default();
         let mut layers = Vec::new();
         let mut fan_in = input;
-        for (i, &h) in TRUNK.iter().enumerate() {
+        for (i, &h) in hidden.iter().enumerate() {
             layers.push(params.linear(&format!("critic.l{i}"), fan_in, h, rng, dev)?);
             fan_in = h;
         }

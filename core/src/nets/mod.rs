@@ -23,9 +23,6 @@ use crate::rng::{glorot_uniform, SaverRng};
 use crate::{CoreError, Result};
 use candle_core::{Device, Tensor, Var};
 
-/// Hidden sizes of the agent trunk and of the critic (docs/ALGORITHM.md §3).
-pub const TRUNK: [usize; 3] = [256, 128, 64];
-
 /// A dense layer y = x·W + b over plain tensors (frozen) or variables (trainable).
 #[derive(Clone, Debug)]
 pub struct Linear {

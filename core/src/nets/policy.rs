@@ -4,9 +4,10 @@
 //! choice ~ softmax(logits) as a one-hot; and its family: the payload it records per
 //! step (μ then log σ) and the values the learner accepts.
 
-use super::{HeadConfig, TRUNK};
+use super::HeadConfig;
 use crate::acting::PolicyWeights;
 use crate::acting::{ActingPolicy, PolicyFamily};
+use crate::config::{MAX_HIDDEN_LAYERS, PAPER_HIDDEN};
 use crate::env::slack;
 use crate::env::EnvLayout;
 use crate::rng::{normal, SaverRng};
@@ -188,19 +189,50 @@ impl PolicyFamily for Gaussian {
     fn architecture(&self) -> String {
         let l = &self.layout;
         format!(
-            "h0 = obs[{o}]; h(i+1) = relu(h(i) @ agent.l(i).w + agent.l(i).b) for i = 0, 1, 2 \
-             (widths {t:?}, w stored [in, out]); raw = h3 @ agent.mu.w + agent.mu.b [{m}]; \
+            "h0 = obs[{o}]; h(i+1) = relu(h(i) @ agent.l(i).w + agent.l(i).b) for each stored \
+             agent.l(i) in turn, i = 0 .. L-1 (w stored [in, out]; the run's hidden widths, \
+             {t:?} by default); raw = h(L) @ agent.mu.w + agent.mu.b [{m}]; \
              mu = mu_bound * tanh(raw) if mu_bound is finite, else raw; \
              log_std = clamp(agent.log_std [{c}], log_std_min, log_std_max); \
              action[j] = mu[j] + exp(log_std[j]) * N(0, 1) for j < {c}; then, if {ch} > 0, \
              a one-hot of choice ~ softmax(mu[{c}..{m}]); the env clips actions to [-1, 1]",
             o = l.obs_dim,
-            t = TRUNK,
+            t = PAPER_HIDDEN,
             m = l.mu_dim(),
             c = l.continuous,
             ch = l.choices,
         )
     }
+}
+
+/// The hidden widths of the agent in `weights`: the output width of each stored
+/// `agent.l{i}.w` for i = 0, 1, ... (their shapes are checked by the caller).
+fn hidden_widths(weights: &PolicyWeights) -> Result<Vec<usize>> {
+    let mut widths = Vec::new();
+    for i in 0..=MAX_HIDDEN_LAYERS {
+        let name = format!("agent.l{i}.w");
+        let Some(t) = weights.tensors.iter().find(|t| t.name == name) else {
+            break;
+        };
+        if i == MAX_HIDDEN_LAYERS {
+            return Err(CoreError::Checkpoint(format!(
+                "weights have more than {MAX_HIDDEN_LAYERS} hidden layers ({name})"
+            )));
+        }
+        match t.shape[..] {
+            [_, w] => widths.push(w),
+            _ => {
+                return Err(CoreError::Checkpoint(format!(
+                    "weights {name} have shape {:?}, not [in, out]",
+                    t.shape
+                )))
+            }
+        }
+    }
+    if widths.is_empty() {
+        return Err(CoreError::Checkpoint("weights lack agent.l0.w".into()));
+    }
+    Ok(widths)
 }
 
 /// Index of one dense layer's weight and bias in the shared weights.
@@ -229,12 +261,16 @@ pub struct Policy {
 }
 
 impl Policy {
-    /// Checks the weights against the layout and indexes them.
+    /// Checks the weights against the layout and indexes them. The hidden widths are
+    /// the weights' own (`agent.l0.w`, `agent.l1.w`, ... as stored, 1 to
+    /// [`MAX_HIDDEN_LAYERS`] of them), so an actor follows whatever `hidden` the
+    /// learner's run has.
     pub fn new(weights: Arc<PolicyWeights>, layout: EnvLayout, head: HeadConfig) -> Result<Self> {
         let find = |name: &str, shape: &[usize]| super::weight_index(&weights, name, shape);
+        let hidden = hidden_widths(&weights)?;
         let mut layers = Vec::new();
         let mut fan_in = layout.obs_dim;
-        let heads = TRUNK
+        let heads = hidden
             .iter()
             .enumerate()
             .map(|(i, &h)| (format!("agent.l{i}"), h));

@@ -240,6 +240,8 @@ pub struct RunSettings {
     pub rho_bar: Option<f64>,
     #[arg(long, allow_hyphen_values = true, help = help("V-trace: clip c̄ of the ratio that carries later corrections back", "c_bar"))]
     pub c_bar: Option<f64>,
+    #[arg(long, value_delimiter = ',', value_name = "WIDTHS", help = help("Hidden layer widths of the policy's trunk and of the critic, e.g. 64,64", "hidden"))]
+    pub hidden: Option<Vec<usize>>,
     /// The environment.
     #[command(flatten)]
     #[serde(default)]
@@ -434,6 +436,39 @@ mod tests {
             assert_eq!(back, c);
             std::fs::remove_file(p).ok();
         }
+    }
+
+    /// `hidden` from a file, a flag over it, the paper's widths without either, and
+    /// the refusals (each names the field): no layer, a zero width, nine layers, a
+    /// network over the weights message ([4096, 4096, 4096]: two 4097 × 4096 layers
+    /// ≈ 33.6 M > 8.39 M values; [2048, 2048]: one 2049 × 2048 ≈ 4.2 M, which fits).
+    #[test]
+    fn hidden_widths_resolve_and_bad_ones_are_refused() {
+        let p = temp("hidden.toml");
+        std::fs::write(&p, "algo = \"ppo\"\nhidden = [32]\n").unwrap();
+        let file = RunSettings {
+            config: Some(p.clone()),
+            ..Default::default()
+        };
+        assert_eq!(file.resolve().unwrap().hidden, [32]);
+        let flag = |h: Vec<usize>| RunSettings {
+            hidden: Some(h),
+            ..file.clone()
+        };
+        assert_eq!(flag(vec![64, 64]).resolve().unwrap().hidden, [64, 64]);
+        assert_eq!(
+            RunSettings::default().resolve().unwrap().hidden,
+            crate::config::PAPER_HIDDEN
+        );
+        assert_eq!(
+            flag(vec![2048, 2048]).resolve().unwrap().hidden,
+            [2048, 2048]
+        );
+        for bad in [vec![], vec![64, 0], vec![8; 9], vec![4096, 4096, 4096]] {
+            let e = flag(bad.clone()).resolve().unwrap_err().to_string();
+            assert!(e.contains("hidden"), "{bad:?}: {e}");
+        }
+        std::fs::remove_file(p).ok();
     }
 
     /// Flags win over the file; the file over the defaults; unbounded values by name.

@@ -14,7 +14,15 @@ fn batch(config: &RunConfig, shift: f32) -> Batch {
     let l = config.env.layout();
     let mut rng = rng_for(config.seed, streams::INIT);
     let with_value = config.algo == Algo::A2c;
-    let agent = Agent::new(&l, config.head, with_value, &mut rng, &Device::Cpu).unwrap();
+    let agent = Agent::new(
+        &l,
+        config.head,
+        &config.hidden,
+        with_value,
+        &mut rng,
+        &Device::Cpu,
+    )
+    .unwrap();
     let done = (0..32).map(|i| i % 11 == 10).collect();
     let mut b = random_batch(&l, 4, 8, 9, 0.8, done);
     let obs = Tensor::from_slice(&b.obs, (32, l.obs_dim), &Device::Cpu).unwrap();
