@@ -306,6 +306,40 @@ fn every_algorithm_trains_at_other_hidden_widths() {
     }
 }
 
+/// Weights an actor cannot read as a Gaussian MLP are refused with the reason: nine
+/// hidden layers, none, a weight that is not a matrix, a chain whose shapes break.
+#[test]
+fn acting_policy_refuses_weights_of_no_mlp() {
+    let l = EnvSpec::new(EnvKind::Point, 2).unwrap().layout();
+    let head = crate::nets::HeadConfig::IN_PCPN_DOMAIN;
+    let agent = |hidden: &[usize]| {
+        let a = Agent::new(&l, head, hidden, false, &mut rng_for(3, 1), &Device::Cpu).unwrap();
+        crate::checkpoint::to_named_all(&a.params().tensors().unwrap()).unwrap()
+    };
+    let refused = |tensors: Vec<saver_proto::NamedTensor>| {
+        let w = PolicyWeights {
+            version: 1,
+            tensors,
+        };
+        match Policy::new(Arc::new(w), l, head) {
+            Ok(_) => panic!("accepted"),
+            Err(e) => e.to_string(),
+        }
+    };
+    assert!(refused(agent(&[3; 9])).contains("more than 8 hidden layers"));
+    let mut none = agent(&[4]);
+    none.retain(|t| !t.name.starts_with("agent.l0"));
+    assert!(refused(none).contains("lack agent.l0.w"));
+    let mut cube = agent(&[4]);
+    let l0 = cube.iter_mut().find(|t| t.name == "agent.l0.w").unwrap();
+    l0.shape = vec![l.obs_dim, 2, 2];
+    assert!(refused(cube).contains("not [in, out]"));
+    let mut broken = agent(&[4, 5]);
+    let l1 = broken.iter_mut().find(|t| t.name == "agent.l1.w").unwrap();
+    l1.shape = vec![5, 4]; // 20 values still, but 4 wide into a 5-wide layer
+    assert!(refused(broken).contains("agent.l1.w"));
+}
+
 #[test]
 fn a2c_update_is_finite_and_changes_the_agent() {
     let spec = EnvSpec::new(EnvKind::Select, 3).unwrap();
