@@ -33,7 +33,7 @@ class Gaussian:
 
     def __init__(self, tensors: dict, layout, params: dict):
         self.c, self.ch = layout.continuous, layout.choices
-        self.layers = []
+        self.layers: list[tuple[np.ndarray, np.ndarray]] = []
         while f"agent.l{len(self.layers)}.w" in tensors:
             if len(self.layers) == MAX_HIDDEN_LAYERS:
                 raise ValueError(f"the weights have more than {MAX_HIDDEN_LAYERS} hidden layers")
