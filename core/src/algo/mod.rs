@@ -254,14 +254,7 @@ pub(crate) fn refuse_vtrace(config: &RunConfig, why: &str) -> Result<()> {
     )))
 }
 
-/// The widths of an MLP from `input` through the `hidden` layers to `output`, for
-/// [`mlp_flops`].
-pub fn mlp_dims(input: usize, hidden: &[usize], output: usize) -> Vec<usize> {
-    std::iter::once(input)
-        .chain(hidden.iter().copied())
-        .chain([output])
-        .collect()
-}
+pub use crate::config::mlp_dims;
 
 /// FLOPs of the dense layers `dims` (in, hidden..., out) on `rows` rows, forward only.
 pub fn mlp_flops(rows: usize, dims: &[usize]) -> f64 {

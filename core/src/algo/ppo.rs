@@ -118,13 +118,10 @@ fn check(c: &RunConfig) -> Result<()> {
 /// step once, then one agent forward for the diagnostics.
 fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let l = config.env.layout();
-    let c = if config.ppo.vector { l.aligned_dim } else { 1 };
-    let (agent, critic) = (
-        super::mlp_dims(l.obs_dim, &config.hidden, l.mu_dim()),
-        super::mlp_dims(l.obs_dim, &config.hidden, c),
-    );
-    let agent = super::mlp_flops(b, &agent);
-    let critic = |n| super::mlp_flops(n, &critic);
+    let h = &config.hidden;
+    let agent = super::mlp_flops(b, &super::mlp_dims(l.obs_dim, h, l.mu_dim()));
+    let critic_dims = super::mlp_dims(l.obs_dim, h, config.ppo.critic_values(&l));
+    let critic = |n| super::mlp_flops(n, &critic_dims);
     critic(b + t) + config.ppo.epochs as f64 * 3.0 * (agent + critic(b)) + agent
 }
 
@@ -172,11 +169,7 @@ impl Ppo {
         let layout = config.env.layout();
         let mut rng = rng_for(config.seed, streams::INIT);
         let agent = Agent::new(&layout, config.head, &config.hidden, false, &mut rng, dev)?;
-        let c = if config.ppo.vector {
-            layout.aligned_dim
-        } else {
-            1
-        };
+        let c = config.ppo.critic_values(&layout);
         let critic = Critic::with_sizes(layout.obs_dim, c, &config.hidden, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());

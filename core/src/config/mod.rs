@@ -139,6 +139,15 @@ fn paper_hidden() -> Vec<usize> {
     PAPER_HIDDEN.to_vec()
 }
 
+/// The widths of an MLP from `input` through the `hidden` layers to `output` (what
+/// `mlp_flops` and the weights-size check take).
+pub fn mlp_dims(input: usize, hidden: &[usize], output: usize) -> Vec<usize> {
+    std::iter::once(input)
+        .chain(hidden.iter().copied())
+        .chain([output])
+        .collect()
+}
+
 /// Where [`SaverConfig::mu_raw_penalty`] starts: tanh(2) = 0.964.
 pub const MU_RAW_LIMIT: f64 = 2.0;
 
@@ -516,10 +525,11 @@ impl RunConfig {
             return bad(format!("width {w} is not in 1..={MAX_HIDDEN_WIDTH}"));
         }
         let l = self.env.layout();
-        let dims: Vec<usize> = std::iter::once(l.obs_dim.max(l.pcpn_input_dim()))
-            .chain(h.iter().copied())
-            .chain([l.mu_dim().max(l.aligned_dim) + 1])
-            .collect();
+        let dims = mlp_dims(
+            l.obs_dim.max(l.pcpn_input_dim()),
+            h,
+            l.mu_dim().max(l.aligned_dim) + 1,
+        );
         let weights: usize = dims.windows(2).map(|w| (w[0] + 1) * w[1]).sum();
         if weights > MAX_AGENT_WEIGHTS {
             return bad(format!(

@@ -49,6 +49,15 @@ impl Default for PpoConfig {
 }
 
 impl PpoConfig {
+    /// The critic's outputs in `layout`: d with `vector`, else 1.
+    pub fn critic_values(&self, layout: &crate::env::EnvLayout) -> usize {
+        if self.vector {
+            layout.aligned_dim
+        } else {
+            1
+        }
+    }
+
     /// Minibatches per pass over a batch of `b` steps.
     pub fn minibatches(&self, b: usize) -> usize {
         b.div_ceil(self.minibatch_size).max(1)
