@@ -105,36 +105,38 @@ pub fn encode(
 }
 
 /// Decodes safetensors bytes into tensors (sorted by name) and metadata.
+///
+/// The header is parsed once (`read_metadata` checks every tensor's offsets and size
+/// against the buffer) and each tensor is read straight into its own vector: an actor
+/// decodes every weights version it acts with, so this runs once per round.
 pub fn decode(bytes: &[u8]) -> Result<(Vec<NamedTensor>, HashMap<String, String>), CodecError> {
-    let st = safetensors::SafeTensors::deserialize(bytes)
+    let (n, header) = safetensors::SafeTensors::read_metadata(bytes)
         .map_err(|e| CodecError::Safetensors(e.to_string()))?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(bytes)
-        .map_err(|e| CodecError::Safetensors(e.to_string()))?;
-    let metadata = header.metadata().clone().unwrap_or_default();
-    let mut out = Vec::new();
-    let mut names: Vec<String> = st.names().into_iter().map(str::to_string).collect();
-    names.sort();
-    for name in names {
-        let view = st
-            .tensor(&name)
-            .map_err(|e| CodecError::Safetensors(e.to_string()))?;
-        if view.dtype() != safetensors::Dtype::F32 {
+    // read_metadata found the 8-byte length, the header and every tensor in `bytes`.
+    let body = &bytes[8 + n..];
+    let mut infos: Vec<(String, &safetensors::tensor::TensorInfo)> =
+        header.tensors().into_iter().collect();
+    infos.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    let mut out = Vec::with_capacity(infos.len());
+    for (name, info) in infos {
+        if info.dtype != safetensors::Dtype::F32 {
             return Err(CodecError::Dtype {
                 name,
-                dtype: format!("{:?}", view.dtype()),
+                dtype: format!("{:?}", info.dtype),
             });
         }
-        let raw = view.data();
-        let n = raw.len() / 4;
-        let mut data = vec![0f32; n];
-        f32_bytes_mut(&mut data).copy_from_slice(&raw[..n * 4]);
+        let (start, end) = info.data_offsets;
+        let data = body[start..end]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
         out.push(NamedTensor {
             name,
-            shape: view.shape().to_vec(),
+            shape: info.shape.clone(),
             data,
         });
     }
-    Ok((out, metadata))
+    Ok((out, header.metadata().clone().unwrap_or_default()))
 }
 
 /// Largest safetensors header [`read_metadata`] reads (ours are a few KiB).
@@ -204,13 +206,6 @@ fn f32_bytes(data: &[f32]) -> &[u8] {
     unsafe { std::slice::from_raw_parts(data.as_ptr().cast::<u8>(), std::mem::size_of_val(data)) }
 }
 
-fn f32_bytes_mut(data: &mut [f32]) -> &mut [u8] {
-    // SAFETY: as in `f32_bytes`; every byte pattern is also a valid f32.
-    unsafe {
-        std::slice::from_raw_parts_mut(data.as_mut_ptr().cast::<u8>(), std::mem::size_of_val(data))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -264,6 +259,33 @@ mod tests {
             encode(&[bad], &HashMap::new()),
             Err(CodecError::Shape { .. })
         ));
+    }
+
+    #[test]
+    fn decode_refuses_cut_or_padded_bytes_and_other_dtypes() {
+        let t = NamedTensor {
+            name: "w".into(),
+            shape: vec![2, 3],
+            data: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+        };
+        let bytes = encode(&[t.clone()], &HashMap::new()).unwrap();
+        assert_eq!(decode(&bytes).unwrap().0, vec![t]);
+        // One byte short of the last value, or one byte past it.
+        assert!(decode(&bytes[..bytes.len() - 1]).is_err());
+        let mut long = bytes.clone();
+        long.push(0);
+        assert!(decode(&long).is_err());
+        // Three f64 values (24 bytes): a well-formed file of another dtype.
+        let view =
+            safetensors::tensor::TensorView::new(safetensors::Dtype::F64, vec![3], &[0u8; 24])
+                .unwrap();
+        let f64s = safetensors::serialize([("d", view)], None).unwrap();
+        match decode(&f64s) {
+            Err(CodecError::Dtype { name, dtype }) => {
+                assert_eq!((name.as_str(), dtype.as_str()), ("d", "F64"))
+            }
+            other => panic!("an f64 tensor decoded: {other:?}"),
+        }
     }
 
     #[test]
