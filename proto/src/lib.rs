@@ -268,7 +268,7 @@ mod tests {
             shape: vec![2, 3],
             data: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
         };
-        let bytes = encode(&[t.clone()], &HashMap::new()).unwrap();
+        let bytes = encode(std::slice::from_ref(&t), &HashMap::new()).unwrap();
         assert_eq!(decode(&bytes).unwrap().0, vec![t]);
         // One byte short of the last value, or one byte past it.
         assert!(decode(&bytes[..bytes.len() - 1]).is_err());
