@@ -125,18 +125,27 @@ pub fn decode(bytes: &[u8]) -> Result<(Vec<NamedTensor>, HashMap<String, String>
                 dtype: format!("{:?}", info.dtype),
             });
         }
-        let (start, end) = info.data_offsets;
-        let data = body[start..end]
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
+        let raw = &body[info.data_offsets.0..info.data_offsets.1];
         out.push(NamedTensor {
             name,
             shape: info.shape.clone(),
-            data,
+            data: f32s_of(raw),
         });
     }
     Ok((out, header.metadata().clone().unwrap_or_default()))
+}
+
+/// The little-endian f32 values of `raw` (a multiple of 4 bytes long), in one copy.
+fn f32s_of(raw: &[u8]) -> Vec<f32> {
+    let n = raw.len() / 4;
+    let mut data: Vec<f32> = Vec::with_capacity(n);
+    // SAFETY: the vector has room for n values, i.e. n * 4 bytes; every byte pattern is
+    // a valid f32 (as in `f32_bytes`, the target is little endian), so all n are set.
+    unsafe {
+        std::ptr::copy_nonoverlapping(raw.as_ptr(), data.as_mut_ptr().cast::<u8>(), n * 4);
+        data.set_len(n);
+    }
+    data
 }
 
 /// Largest safetensors header [`read_metadata`] reads (ours are a few KiB).
