@@ -1,0 +1,106 @@
+#!/usr/bin/env python3
+"""How close one Python actor process can come to the bare env's step rate: the
+actor's work added one layer at a time, in one run, with no learner and no gRPC.
+
+    python3 bench/python_actor_ceiling.py [--envs 16] [--steps 100000]
+
+1. bare: E Reacher-v5 envs stepped in a loop (bench/python_actor_speed.py's bare rate);
+2. + env set: the same through the actor's LocalEnvs (actions mapped to the env's,
+   outcomes written into arrays);
+3. + policy.act: and the policy's forward pass and draw for every step (the default 256-128-64
+   Gaussian, random weights, one BLAS thread as the actor runs it);
+4. the actor's whole step loop (Actor._collect: sampling, outcome, vector rewards,
+   bookkeeping, checks, the rollout message), 8 steps a rollout as the learner asks.
+
+Each row is against the bare rate. What the actor does beyond (weights, gRPC, the
+sync round) is bench/python_actor_speed.py's gap between its own time and row 4.
+"""
+import argparse
+import time
+from types import SimpleNamespace
+
+import numpy as np
+from saver_actor import Actor, Connection
+from saver_actor.envset import LocalEnvs
+from saver_actor.examples import reacher
+from saver_actor.policy import policy_for
+from threadpoolctl import threadpool_limits
+
+ap = argparse.ArgumentParser()
+ap.add_argument("--envs", type=int, default=16)
+ap.add_argument("--steps", type=int, default=100_000)
+args = ap.parse_args()
+make_env, decl = reacher()
+E = args.envs
+rounds = args.steps // (8 * E)
+rng = np.random.default_rng(0)
+
+
+def random_policy():
+    widths = [decl.obs_dim, 256, 128, 64]
+    t = {}
+    for i in range(3):
+        t[f"agent.l{i}.w"] = (rng.standard_normal((widths[i], widths[i + 1])) * 0.05).astype(np.float32)
+        t[f"agent.l{i}.b"] = np.zeros(widths[i + 1], np.float32)
+    t["agent.mu.w"] = (rng.standard_normal((64, decl.continuous)) * 0.05).astype(np.float32)
+    t["agent.mu.b"] = np.zeros(decl.continuous, np.float32)
+    t["agent.log_std"] = np.zeros(decl.continuous, np.float32)
+    layout = SimpleNamespace(obs_dim=decl.obs_dim, continuous=decl.continuous, choices=0)
+    return policy_for("gaussian-mlp", t, layout, {"mu_bound": 1.0})
+
+
+def bare():
+    envs = [make_env() for _ in range(E)]
+    for i, e in enumerate(envs):
+        e.reset(seed=i)
+    t0 = time.perf_counter()
+    for _ in range(8 * rounds):
+        for e, a in zip(envs, np.clip(rng.standard_normal((E, 2)), -1, 1).astype(np.float32)):
+            _, _, term, trunc, _ = e.step(a)
+            if term or trunc:
+                e.reset()
+    return 8 * rounds * E / (time.perf_counter() - t0)
+
+
+def env_set(policy):
+    envs = LocalEnvs(make_env, E, decl.obs_dim, decl.continuous, decl.action_dim)
+    obs = np.stack(envs.reset(range(E), list(range(E))))
+    t0 = time.perf_counter()
+    for _ in range(8 * rounds):
+        acts = np.clip(rng.standard_normal((E, 2)), -1, 1).astype(np.float32)
+        if policy is not None:
+            acts, _ = policy.act(obs, rng)
+        o, _, term, trunc, _ = envs.step(acts)
+        obs[:] = o
+        done = np.flatnonzero(term | trunc)
+        if len(done):
+            obs[done] = envs.reset(done, [None] * len(done))
+    rate = 8 * rounds * E / (time.perf_counter() - t0)
+    envs.close()
+    return rate
+
+
+def collect(policy):
+    actor = Actor(make_env, decl, Connection(), n_envs=E)
+    obs = np.stack(actor._reset(range(E), 0, 0))
+    running, returns = np.zeros(E, np.int64), np.zeros(E, np.float32)
+    t0 = time.perf_counter()
+    for _ in range(rounds):
+        msg, obs = actor._collect(policy, rng, obs, running, returns, 8, 50, False)
+        msg.SerializeToString()
+    rate = 8 * rounds * E / (time.perf_counter() - t0)
+    actor.close()
+    return rate, actor.summary.env_seconds, time.perf_counter() - t0
+
+
+with threadpool_limits(limits=1, user_api="blas"):
+    policy = random_policy()
+    b = bare()
+    rows = [("+ env set", env_set(None)), ("+ policy.act (forward, draw)", env_set(policy))]
+    c, env_s, wall = collect(policy)
+print(f"Reacher-v5, {E} envs, {8 * rounds * E} steps, one process, no learner")
+print(f"  bare env                       {b:8.0f} steps/s")
+for name, r in rows:
+    print(f"  {name:30s} {r:8.0f} steps/s ({r / b:.0%} of bare)")
+print(f"  the actor's step loop          {c:8.0f} steps/s ({c / b:.0%} of bare; "
+      f"env.step {env_s:.1f} s of {wall:.1f} s)")
