@@ -4,7 +4,8 @@ actor's work added one layer at a time, in one run, with no learner and no gRPC.
 
     python3 bench/python_actor_ceiling.py [--envs 16] [--steps 100000]
 
-1. bare: E Reacher-v5 envs stepped in a loop (bench/python_actor_speed.py's bare rate);
+1. bare: E Reacher-v5 envs stepped in a loop (reacher_learner.bare_rate, as
+   bench/python_actor_speed.py measures it);
 2. + env set: the same through the actor's LocalEnvs (actions mapped to the env's,
    outcomes written into arrays);
 3. + policy.act: and the policy's forward pass and draw for every step (the default 256-128-64
@@ -20,6 +21,7 @@ import time
 from types import SimpleNamespace
 
 import numpy as np
+import reacher_learner  # bench/, beside this script
 from saver_actor import Actor, Connection
 from saver_actor.envset import LocalEnvs
 from saver_actor.examples import reacher
@@ -49,25 +51,12 @@ def random_policy():
     return policy_for("gaussian-mlp", t, layout, {"mu_bound": 1.0})
 
 
-def bare():
-    envs = [make_env() for _ in range(E)]
-    for i, e in enumerate(envs):
-        e.reset(seed=i)
-    t0 = time.perf_counter()
-    for _ in range(8 * rounds):
-        for e, a in zip(envs, np.clip(rng.standard_normal((E, 2)), -1, 1).astype(np.float32)):
-            _, _, term, trunc, _ = e.step(a)
-            if term or trunc:
-                e.reset()
-    return 8 * rounds * E / (time.perf_counter() - t0)
-
-
 def env_set(policy):
     envs = LocalEnvs(make_env, E, decl.obs_dim, decl.continuous, decl.action_dim)
     obs = np.stack(envs.reset(range(E), list(range(E))))
     t0 = time.perf_counter()
     for _ in range(8 * rounds):
-        acts = np.clip(rng.standard_normal((E, 2)), -1, 1).astype(np.float32)
+        acts = reacher_learner.policy_actions(rng, (E, 2)).astype(np.float32)
         if policy is not None:
             acts, _ = policy.act(obs, rng)
         o, _, term, trunc, _ = envs.step(acts)
@@ -95,11 +84,15 @@ def collect(policy):
 
 with threadpool_limits(limits=1, user_api="blas"):
     policy = random_policy()
-    b = bare()
+    # The bare rate first and last (the mean is the reference): the first loop of a
+    # process runs a few % slower than the later ones, and the host drifts.
+    b0 = reacher_learner.bare_rate(make_env, E, 8 * rounds * E, reacher_learner.policy_actions)
     rows = [("+ env set", env_set(None)), ("+ policy.act (forward, draw)", env_set(policy))]
     c, env_s, wall = collect(policy)
+    b1 = reacher_learner.bare_rate(make_env, E, 8 * rounds * E, reacher_learner.policy_actions)
+b = (b0 + b1) / 2
 print(f"Reacher-v5, {E} envs, {8 * rounds * E} steps, one process, no learner")
-print(f"  bare env                       {b:8.0f} steps/s")
+print(f"  bare env                       {b:8.0f} steps/s (first {b0:.0f}, last {b1:.0f})")
 for name, r in rows:
     print(f"  {name:30s} {r:8.0f} steps/s ({r / b:.0%} of bare)")
 print(f"  the actor's step loop          {c:8.0f} steps/s ({c / b:.0%} of bare; "

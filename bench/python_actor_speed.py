@@ -17,9 +17,7 @@
 """
 import argparse
 import multiprocessing as mp
-import time
 
-import numpy as np
 import reacher_learner  # bench/, beside this script
 from saver_actor import Actor, Connection
 from saver_actor.examples import reacher
@@ -34,22 +32,6 @@ args = ap.parse_args()
 make_env, decl = reacher()
 
 
-def bare_rate(n_envs, steps, draw):
-    envs = [make_env() for _ in range(n_envs)]
-    for i, e in enumerate(envs):
-        e.reset(seed=i)
-    rng = np.random.default_rng(0)
-    n = steps // n_envs
-    t = time.perf_counter()
-    for _ in range(n):
-        acts = draw(rng, (n_envs, 2)).astype(np.float32)
-        for e, a in zip(envs, acts):
-            _, _, term, trunc, _ = e.step(a)
-            if term or trunc:
-                e.reset()
-    return n * n_envs / (time.perf_counter() - t)
-
-
 def act(url, n_envs, out):
     actor = Actor(make_env, decl, Connection(url), n_envs=n_envs, give_up=30, log=lambda m: None,
                   env_processes=args.env_processes)
@@ -60,8 +42,8 @@ def act(url, n_envs, out):
     out.put((s.steps, s.seconds, s.wait_seconds, s.env_seconds))
 
 
-bare = bare_rate(args.envs, args.steps, lambda rng, shape: np.clip(rng.standard_normal(shape), -1, 1))
-uniform = bare_rate(args.envs, args.steps, lambda rng, shape: rng.uniform(-1, 1, shape))
+bare = reacher_learner.bare_rate(make_env, args.envs, args.steps, reacher_learner.policy_actions)
+uniform = reacher_learner.bare_rate(make_env, args.envs, args.steps, lambda rng, shape: rng.uniform(-1, 1, shape))
 learner, url = reacher_learner.start(args.saver, decl, args.actors, args.steps, "saver-speed-")
 try:
     ctx = mp.get_context("fork")
