@@ -56,8 +56,9 @@ def env_set(policy):
     obs = np.stack(envs.reset(range(E), list(range(E))))
     t0 = time.perf_counter()
     for _ in range(8 * rounds):
-        acts = reacher_learner.policy_actions(rng, (E, 2)).astype(np.float32)
-        if policy is not None:
+        if policy is None:
+            acts = reacher_learner.policy_actions(rng, (E, 2)).astype(np.float32)
+        else:
             acts, _ = policy.act(obs, rng)
         o, _, term, trunc, _ = envs.step(acts)
         obs[:] = o
@@ -77,9 +78,9 @@ def collect(policy):
     for _ in range(rounds):
         msg, obs = actor._collect(policy, rng, obs, running, returns, 8, 50, False)
         msg.SerializeToString()
-    rate = 8 * rounds * E / (time.perf_counter() - t0)
+    wall = time.perf_counter() - t0
     actor.close()
-    return rate, actor.summary.env_seconds, time.perf_counter() - t0
+    return 8 * rounds * E / wall, actor.summary.env_seconds, wall
 
 
 with threadpool_limits(limits=1, user_api="blas"):
