@@ -57,6 +57,7 @@ for variant in opts.algos.split(","):
         before, after, _, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
                                               store if saver else None, name, opts.max_steps, out, 100 * seed)
         print(json.dumps({"env": decl.name, "algo": variant, "extra": opts.extra, "seed": seed, "steps": opts.steps,
-                          "wall_s": round(wall, 1), "untrained": rounded(before), "trained": rounded(after)}), flush=True)
+                          "wall_s": round(wall, 1), "pcpn_wait_s": round(t.LAST_RUN["pcpn_wait_s"], 1),
+                          "untrained": rounded(before), "trained": rounded(after)}), flush=True)
 if store is not None:
     store.stop()

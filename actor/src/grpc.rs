@@ -50,6 +50,9 @@ fn status_error(s: tonic::Status) -> LinkError {
         tonic::Code::FailedPrecondition => LinkError::Mismatch(s.message().to_string()),
         tonic::Code::ResourceExhausted => LinkError::TooLarge(s.message().to_string()),
         tonic::Code::OutOfRange => LinkError::Finished(s.message().to_string()),
+        tonic::Code::Unavailable if s.metadata().contains_key(saver_proto::WAITING_KEY) => {
+            LinkError::Waiting(s.message().to_string())
+        }
         _ => LinkError::Closed(format!("{}: {}", s.code(), s.message())),
     }
 }

@@ -68,6 +68,7 @@ pub fn run_remote(a: &RemoteActor, stop: &AtomicBool) -> Result<ActorSummary, Re
     let mut total = ActorSummary::default();
     let mut attempt = 0u32;
     let mut last_contact = Instant::now();
+    let mut said_waiting: Option<Instant> = None;
     loop {
         let reg = Registration {
             name: a.name.clone(),
@@ -107,6 +108,19 @@ pub fn run_remote(a: &RemoteActor, stop: &AtomicBool) -> Result<ActorSummary, Re
             }
             Err(ActorError::Link(LinkError::Finished(_))) => return Ok(total),
             Err(ActorError::Link(LinkError::Closed(why))) => why,
+            Err(ActorError::Link(LinkError::Waiting(why))) => {
+                // Up and waiting for its PCPN: no deadline; its progress every 30 s.
+                last_contact = Instant::now();
+                if said_waiting.is_none_or(|t| t.elapsed() >= Duration::from_secs(30)) {
+                    eprintln!("{}: the learner at {} {why}", a.name, a.learner);
+                    said_waiting = Some(Instant::now());
+                }
+                if stop.load(Ordering::Relaxed) {
+                    return Ok(total);
+                }
+                std::thread::sleep(Duration::from_secs(2));
+                continue;
+            }
             Err(source) => {
                 return Err(RemoteError::Actor {
                     name: a.name.clone(),

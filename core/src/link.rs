@@ -167,6 +167,10 @@ pub enum LinkError {
     /// The request is over a size cap.
     #[error("too large for the learner: {0}")]
     TooLarge(String),
+    /// The learner is up but waits (for its PCPN) before it serves: the actor should
+    /// keep asking, with no deadline; the message says how far the wait is.
+    #[error("the learner {0}")]
+    Waiting(String),
 }
 
 /// The actor side of the actor–learner interface.

@@ -175,6 +175,7 @@ impl From<&PretrainConfig> for pb::PretrainSettings {
             quantiles: p.quantiles as u32,
             seed: p.seed,
             samples: p.samples.name().to_string(),
+            walk_samples: p.walk_samples,
         }
     }
 }
@@ -198,6 +199,7 @@ impl TryFrom<&pb::PretrainSettings> for PretrainConfig {
             seed: s.seed,
             samples: clap::ValueEnum::from_str(&s.samples, false)
                 .map_err(|_| named("samples", &s.samples, "reset, walk"))?,
+            walk_samples: s.walk_samples,
         };
         p.validate()?;
         Ok(p)

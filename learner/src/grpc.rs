@@ -140,7 +140,7 @@ impl Drop for Leave {
 fn link_status(e: LinkError) -> Status {
     let cut = |why: String| saver_proto::clip_chars(&why, saver_proto::MAX_STATUS_CHARS);
     match e {
-        LinkError::Closed(why) => Status::unavailable(cut(why)),
+        LinkError::Closed(why) | LinkError::Waiting(why) => Status::unavailable(cut(why)),
         LinkError::Finished(why) => Status::out_of_range(cut(why)),
         LinkError::Rejected(why) => Status::invalid_argument(cut(why)),
         LinkError::Mismatch(why) => Status::failed_precondition(cut(why)),
@@ -499,6 +499,7 @@ impl Learner for LearnerService {
             stale_dropped: s.stale_dropped,
             mean_ep_len_100: s.mean_ep_len_100.unwrap_or(f64::NAN),
             finished: s.finished,
+            ..Default::default()
         }))
     }
 }

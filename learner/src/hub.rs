@@ -101,7 +101,7 @@ pub fn reason(e: &LinkError) -> &'static str {
         LinkError::Rejected(_) => "invalid_argument",
         LinkError::Mismatch(_) => "failed_precondition",
         LinkError::TooLarge(_) => "resource_exhausted",
-        LinkError::Closed(_) | LinkError::Finished(_) => "unavailable",
+        LinkError::Closed(_) | LinkError::Finished(_) | LinkError::Waiting(_) => "unavailable",
     }
 }
 

@@ -15,6 +15,7 @@ pub mod metrics;
 pub mod size_limit;
 pub mod tensorboard;
 pub mod trainer;
+pub mod waiting;
 pub mod warn;
 
 pub use checkpoint::{resume, ActorStates, Counters, RunState, CHECKPOINT_FILE};

@@ -3,6 +3,7 @@
 //! what it is, how it was made and how good it is; hands the right one to a run.
 
 mod obtain;
+pub mod progress;
 pub mod samples;
 pub mod service;
 pub mod store;

@@ -29,8 +29,8 @@ pub const CHUNK: u32 = 4096;
 pub const QUEUED_CHUNKS: u64 = 8;
 /// Samples in the shuffle buffer.
 pub const SHUFFLE: usize = 65_536;
-/// How often a waiting pretraining says what it waits for.
-const SAY_EVERY: Duration = Duration::from_secs(30);
+/// How often the store says how far a pretraining is (and the learner, and actors).
+pub const SAY_EVERY: Duration = Duration::from_secs(10);
 /// How long a pretraining waits for its next samples unless told otherwise
 /// (`saver pcpn-trainer --pretrain-deadline`).
 pub const DEFAULT_DEADLINE: Duration = Duration::from_secs(30 * 60);
@@ -49,6 +49,49 @@ struct Want {
     received: u64,
     /// Of.
     total: u64,
+    /// When the pretraining asked for them.
+    since: Instant,
+}
+
+/// How far the samples of the pretraining in progress are (saver.proto
+/// PretrainProgress).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SampleProgress {
+    /// The env.
+    pub spec: EnvSpec,
+    /// Samples arrived.
+    pub received: u64,
+    /// Of.
+    pub total: u64,
+    /// Providers of that env connected.
+    pub providers: usize,
+    /// Seconds since the pretraining asked for them.
+    pub seconds: f64,
+}
+
+impl SampleProgress {
+    /// Seconds until the rest arrive at the rate so far (None before the first).
+    pub fn eta(&self) -> Option<f64> {
+        (self.received > 0 && self.seconds > 0.0).then(|| {
+            (self.total - self.received.min(self.total)) as f64 * self.seconds
+                / self.received as f64
+        })
+    }
+
+    /// "12,288 of 67,584 samples (18 %) from 2 providers, 3,100/s, about 18 s left".
+    pub fn line(&self) -> String {
+        let rate = self.received as f64 / self.seconds.max(1e-9);
+        let eta = self
+            .eta()
+            .map_or_else(String::new, |s| format!(", about {s:.0} s left"));
+        format!(
+            "{} of {} samples ({:.0} %) from {} providers, {rate:.0}/s{eta}",
+            self.received,
+            self.total,
+            100.0 * self.received as f64 / self.total.max(1) as f64,
+            self.providers
+        )
+    }
 }
 
 #[derive(Default)]
@@ -70,6 +113,8 @@ pub struct SampleHub {
     work: tokio::sync::watch::Sender<u64>,
     /// How long a pretraining waits for its next samples before it fails.
     deadline: Duration,
+    /// The store is stopping: a waiting pretraining ends at once.
+    cancelled: std::sync::atomic::AtomicBool,
 }
 
 impl Default for SampleHub {
@@ -87,7 +132,30 @@ impl SampleHub {
             arrived: Condvar::new(),
             work: tokio::sync::watch::channel(0).0,
             deadline,
+            cancelled: Default::default(),
         }
+    }
+
+    /// Ends the wait of a pretraining for samples (with an error saying the store
+    /// stops), now and from now on.
+    pub fn cancel(&self) {
+        self.cancelled
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+        let _s = self.lock();
+        self.arrived.notify_all();
+    }
+
+    /// The samples of the pretraining in progress, if one waits for streamed samples.
+    pub fn progress(&self) -> Option<SampleProgress> {
+        let s = self.lock();
+        let w = s.want.as_ref()?;
+        Some(SampleProgress {
+            spec: w.spec.clone(),
+            received: w.received,
+            total: w.total,
+            providers: s.providers.iter().filter(|(_, p)| *p == w.spec).count(),
+            seconds: w.since.elapsed().as_secs_f64(),
+        })
     }
 
     fn lock(&self) -> MutexGuard<'_, HubState> {
@@ -178,6 +246,7 @@ impl SampleHub {
             queued: VecDeque::new(),
             received: 0,
             total,
+            since: Instant::now(),
         });
         drop(s);
         self.wake_providers();
@@ -195,16 +264,22 @@ impl SampleHub {
         })
     }
 
-    /// The next chunk of samples for the pretraining of `spec`; waits (saying so every
-    /// 30 s) until one arrives, and fails when none has for the hub's deadline.
+    /// The next chunk of samples for the pretraining of `spec`; waits (saying how far
+    /// the samples are every 10 s) until one arrives, and fails when none has for the
+    /// hub's deadline or the store stops.
     fn next_chunk(&self, spec: &EnvSpec) -> Result<Samples> {
         let mut s = self.lock();
-        let (since, mut said) = (Instant::now(), Instant::now());
+        let since = Instant::now();
         loop {
             if let Some(chunk) = s.want.as_mut().and_then(|w| w.queued.pop_front()) {
                 drop(s);
                 self.wake_providers();
                 return Ok(chunk);
+            }
+            if self.cancelled.load(std::sync::atomic::Ordering::SeqCst) {
+                return Err(CoreError::Config(format!(
+                    "pretraining {spec}: the store is stopping"
+                )));
             }
             let left = self.deadline.saturating_sub(since.elapsed());
             let providers = s.providers.iter().filter(|(_, p)| p == spec).count();
@@ -219,17 +294,9 @@ impl SampleHub {
                     self.deadline
                 )));
             }
-            if said.elapsed() >= SAY_EVERY {
-                said = Instant::now();
-                tracing::info!(
-                    "pretraining {spec}: waiting for samples from actors ({providers} \
-                     providers connected; {got} of {of} samples arrived; giving up in {:.0} s)",
-                    left.as_secs_f64()
-                );
-            }
             s = self
                 .arrived
-                .wait_timeout(s, left.min(Duration::from_secs(1)))
+                .wait_timeout(s, left.min(Duration::from_millis(250)))
                 .unwrap_or_else(|p| p.into_inner())
                 .0;
         }
@@ -308,6 +375,61 @@ impl Streamed {
             samples: s,
             at: 0,
         })
+    }
+}
+
+impl Streamed {
+    /// The next `n` arrived samples as a [`Pool`] drawn from at random with
+    /// replacement (seeded like this source); the providers are asked for no more.
+    pub fn into_pool(mut self, n: usize) -> Result<Pool> {
+        let mut s = Samples {
+            x: Vec::new(),
+            delta: Vec::new(),
+            n: 0,
+        };
+        while s.n < n {
+            let (x, d) = self.next_row()?.ok_or_else(|| exhausted(n - s.n))?;
+            s.x.extend(x);
+            s.delta.extend(d);
+            s.n += 1;
+        }
+        let rng = self.rng.clone();
+        Ok(Pool {
+            layout: self.spec.layout(),
+            samples: s,
+            rng,
+        })
+    }
+}
+
+/// A fixed set of streamed samples that batches draw from at random, with
+/// replacement (`pretrain.walk_samples`).
+pub struct Pool {
+    layout: saver_core::env::EnvLayout,
+    samples: Samples,
+    rng: SaverRng,
+}
+
+impl SampleSource for Pool {
+    fn layout(&self) -> saver_core::env::EnvLayout {
+        self.layout
+    }
+
+    fn sample(&mut self, n: usize) -> Result<Samples> {
+        let (xw, d) = (self.layout.pcpn_input_dim(), self.layout.aligned_dim);
+        let mut out = Samples {
+            x: Vec::with_capacity(n * xw),
+            delta: Vec::with_capacity(n * d),
+            n,
+        };
+        for _ in 0..n {
+            let i = self.rng.random_range(0..self.samples.n);
+            out.x
+                .extend_from_slice(&self.samples.x[i * xw..(i + 1) * xw]);
+            out.delta
+                .extend_from_slice(&self.samples.delta[i * d..(i + 1) * d]);
+        }
+        Ok(out)
     }
 }
 
@@ -509,6 +631,7 @@ pub async fn provide(
         _ => return,
     };
     let id = hub.join(spec.clone());
+    hub.arrived.notify_all();
     let mut work = hub.work.subscribe();
     loop {
         let Some((count, received, total)) = hub.take(&spec) else {
@@ -523,6 +646,8 @@ pub async fn provide(
             count,
             batches_done: (received / CHUNK as u64) as u32,
             batches: total.div_ceil(CHUNK as u64),
+            samples_received: received,
+            samples_total: total,
         };
         if tx.send(Ok(demand)).await.is_err() {
             hub.give_back(&spec, count as u64);

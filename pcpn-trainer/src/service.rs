@@ -34,6 +34,8 @@ pub struct PcpnService {
     access: Access,
     /// Custom envs' samples, streamed by their actors.
     samples: Arc<SampleHub>,
+    /// How far the pretraining in progress is.
+    tracker: crate::progress::Tracker,
 }
 
 /// The info message of a PCPN file's bytes (checked as a whole: spec, settings, hash).
@@ -78,7 +80,19 @@ impl PcpnService {
             pretraining: Arc::new(Mutex::new(())),
             access: Access::default(),
             samples: Arc::default(),
+            tracker: Default::default(),
         }
+    }
+
+    /// How far the pretraining in progress is (None when none is).
+    pub fn progress(&self) -> Option<pb::PretrainProgress> {
+        self.tracker.progress(&self.samples)
+    }
+
+    /// Ends a pretraining that waits for samples, now and from now on (the store
+    /// stops).
+    pub fn cancel(&self) {
+        self.samples.cancel();
     }
 
     /// A pretraining from streamed samples fails when none arrive for `deadline`.
@@ -218,10 +232,11 @@ impl PcpnStoreApi for PcpnService {
                 samples.providers_of(&spec)
             );
         }
+        let tracker = self.tracker.clone();
+        tracker.begin(&spec, p.batches);
         let saved = tokio::task::spawn_blocking(move || -> Result<PathBuf, String> {
             let _one_at_a_time = one_at_a_time;
             let dev = saver_core::device();
-            let every = (p.batches / 20).max(1);
             let env = spec.to_string();
             let report = pretrain_pcpn(&spec, &p, &dev, Some(&samples), &mut |b| {
                 metrics::gauge!("saver_pretrain_batches_done", "env" => env.clone())
@@ -229,16 +244,10 @@ impl PcpnStoreApi for PcpnService {
                 metrics::gauge!("saver_pretrain_batches", "env" => env.clone())
                     .set(b.batches as f64);
                 metrics::gauge!("saver_pretrain_loss", "env" => env.clone()).set(b.loss as f64);
-                if b.batch % every == 0 {
-                    tracing::info!(
-                        "pretraining {spec}: batch {}/{} loss {:.4}",
-                        b.batch,
-                        b.batches,
-                        b.loss
-                    );
-                }
-            })
-            .map_err(|e| e.to_string())?;
+                tracker.batch(b.batch, b.loss);
+            });
+            tracker.end();
+            let report = report.map_err(|e| e.to_string())?;
             let info = store
                 .save(&spec, &p, &report.tensors, report.meta)
                 .map_err(|e| e.to_string())?;
@@ -254,6 +263,15 @@ impl PcpnStoreApi for PcpnService {
         Ok(Response::new(pb::PretrainReply {
             info: Some(info_of(&bytes)?),
             already_present: false,
+        }))
+    }
+
+    async fn progress(
+        &self,
+        _req: Request<pb::ProgressRequest>,
+    ) -> Result<Response<pb::ProgressReply>, Status> {
+        Ok(Response::new(pb::ProgressReply {
+            pretraining: self.progress().into_iter().collect(),
         }))
     }
 
@@ -273,7 +291,10 @@ impl PcpnStoreApi for PcpnService {
     }
 }
 
-/// Serves PcpnStore (and grpc.health.v1) on `listener` until `shutdown`.
+/// Serves PcpnStore (and grpc.health.v1) on `listener` until `shutdown`, saying how
+/// far a pretraining is every 10 s. At `shutdown` a pretraining that waits for samples
+/// ends at once (its caller is told the store stops); one that trains is left to the
+/// caller's runtime to drop (nothing of it is stored).
 pub async fn serve(
     service: PcpnService,
     listener: tokio::net::TcpListener,
@@ -282,13 +303,32 @@ pub async fn serve(
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<PcpnStoreServer<PcpnService>>().await;
     let incoming = service.access.incoming(listener);
-    service
+    let reporter = tokio::spawn({
+        let service = service.clone();
+        async move {
+            let mut tick = tokio::time::interval(crate::samples::SAY_EVERY);
+            tick.tick().await;
+            loop {
+                tick.tick().await;
+                if let Some(p) = service.progress() {
+                    tracing::info!("{}", p.line);
+                }
+            }
+        }
+    });
+    let stopping = service.clone();
+    let served = service
         .access
         .server()?
         .add_service(health_service)
         .add_service(service.into_server())
-        .serve_with_incoming_shutdown(incoming, shutdown)
-        .await
+        .serve_with_incoming_shutdown(incoming, async move {
+            shutdown.await;
+            stopping.cancel();
+        })
+        .await;
+    reporter.abort();
+    served
 }
 
 /// Fetches the PCPN of `spec` pretrained with `p` from a store at `url` (asking it to

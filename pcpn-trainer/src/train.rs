@@ -76,17 +76,26 @@ pub fn pretrain_pcpn(
                 ))
             })?;
             let held = PRETRAIN_EVAL_BATCHES * p.batch_size;
-            let total = p.batches * p.batch_size as u64 + held as u64;
+            let total = p.streamed_total();
             let mut source = hub.source(spec, total, p.seed)?;
             let mut held_out = source.held_out(held)?;
-            let mut report = pretrain_from(Box::new(source), &mut held_out, p, dev, progress)?;
+            let (train, how): (Box<dyn SampleSource>, String) = match p.walk_samples {
+                0 => (
+                    Box::new(source),
+                    format!("the rest read once through a shuffle buffer of {SHUFFLE}"),
+                ),
+                n => (
+                    Box::new(source.into_pool(n as usize)?),
+                    format!("each batch drawn from the other {n} at random, with replacement"),
+                ),
+            };
+            let mut report = pretrain_from(train, &mut held_out, p, dev, progress)?;
             report.meta.insert(
                 "samples".into(),
                 format!(
                     "{total} transitions streamed by actors (walks: each step mu ~ U(-1, 1), \
                      sigma ~ U(0, 1), a ~ N(mu, sigma^2), from the env's reset to its episode \
-                     end); the first {held} held out, the rest read once through a shuffle \
-                     buffer of {SHUFFLE}"
+                     end); the first {held} held out, {how}"
                 ),
             );
             Ok(report)

@@ -23,6 +23,9 @@ pub const SESSION_KEY: &str = "x-saver-session";
 /// only the rollouts it refuses (one message and one wake-up less per rollout for a
 /// client that does nothing with an acceptance); without it, every rollout.
 pub const ACKS_KEY: &str = "x-saver-acks";
+/// Metadata key (in the trailers of an UNAVAILABLE answer) of a learner that is up
+/// but waits for its PCPN before it serves: actors keep waiting, with no deadline.
+pub const WAITING_KEY: &str = "x-saver-waiting";
 /// The value of [`ACKS_KEY`] that asks for refusals only.
 pub const ACKS_REFUSALS: &str = "refusals";
 

@@ -15,10 +15,11 @@ import argparse
 import importlib
 import json
 import os
+import signal
 import sys
 import threading
 
-from .actor import Actor, Connection, Refused
+from .actor import Actor, Connection, LinkLost, Refused
 from .env import EnvDecl, EnvError
 from .samples import provide_samples
 
@@ -67,11 +68,19 @@ def connection(url, args):
     return Connection(url=url, token=token, ca=ca)
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv=None):
+    # SIGTERM (docker stop, kill) stops as Ctrl-C does: the envs closed, one line said.
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _interrupt)
     ap = argparse.ArgumentParser(prog="saver-actor", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
-    cmds = {c: sub.add_parser(c) for c in ("act", "samples", "describe", "check", "enjoy", "evaluate")}
+    cmds = {c: sub.add_parser(c, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+            for c in ("act", "samples", "describe", "check", "enjoy", "evaluate")}
     for p in cmds.values():
         p.add_argument("--factory", help="module:function returning (make_env, EnvDecl)")
         p.add_argument("--env-id", help="a Gymnasium env id (with --aligned and --max-change)")
@@ -86,16 +95,21 @@ def main(argv=None):
         p.add_argument("--token-file", help="the learner's (and store's) token")
         p.add_argument("--ca", help="CA certificate (PEM) of https:// servers")
     a = cmds["act"]
-    a.add_argument("--learner", default="http://127.0.0.1:50051")
+    a.add_argument("--learner", default="http://127.0.0.1:50051", help="the learner's URL")
     a.add_argument("--envs", type=int, default=1, help="env instances stepped per rollout")
     a.add_argument("--env-processes", type=int, default=0, metavar="N",
                    help="step the envs in N worker processes at once (0: in this process, one after another)")
     a.add_argument("--actor-name", help="name in the learner's logs")
     a.add_argument("--pcpn-samples", metavar="URL", help="also answer this pcpn-trainer's demands for samples")
-    a.add_argument("--connect-timeout", type=float, default=600.0)
+    a.add_argument("--connect-timeout", type=float, default=600.0, metavar="SECONDS",
+                   help="give up after this long without reaching the learner (never while it says it waits for "
+                        "its PCPN, nor while this actor feeds the PCPN store)")
     a.add_argument("--seed", type=int, default=0, help="seed of the PCPN samples")
     cmds["samples"].add_argument("--pcpn", required=True, metavar="URL", help="the pcpn-trainer")
-    cmds["samples"].add_argument("--seed", type=int, default=0)
+    cmds["samples"].add_argument("--seed", type=int, default=0, help="seed of the walks")
+    cmds["samples"].add_argument("--envs", type=int, default=16, help="env instances walked at once")
+    cmds["samples"].add_argument("--connect-timeout", type=float, default=600.0, metavar="SECONDS",
+                                 help="give up after this long without reaching the store")
     cmds["check"].add_argument("--steps", type=int, default=500, help="random steps to take")
     cmds["check"].add_argument("--seed", type=int, default=0)
     j = cmds["enjoy"]
@@ -107,7 +121,7 @@ def main(argv=None):
     j.add_argument("--max-steps", type=int, default=1000, help="end an episode after this many steps")
     j.add_argument("--seed", type=int, default=0, help="env seed of the first episode (then +1 each)")
     v = cmds["evaluate"]
-    v.add_argument("--learner", default="http://127.0.0.1:50051")
+    v.add_argument("--learner", default="http://127.0.0.1:50051", help="the learner's URL")
     v.add_argument("--out", default="best.safetensors", help="the best weights so far (eval.csv beside it)")
     v.add_argument("--every", type=float, default=60.0, help="seconds between evaluations")
     v.add_argument("--episodes", type=int, default=10, help="deterministic episodes per evaluation")
@@ -140,7 +154,8 @@ def main(argv=None):
                   + (f"; {r.frames} frames in {args.video}" if args.video else ""))
             return 0
         if args.cmd == "samples":
-            n = provide_samples(make_env, decl, connection(args.pcpn, args), seed=args.seed)
+            n = provide_samples(make_env, decl, connection(args.pcpn, args), seed=args.seed, n_envs=args.envs,
+                                log=lambda m: print(m, file=sys.stderr), give_up=args.connect_timeout)
             print(f"sample provider: the store closed the call after {n} samples", file=sys.stderr)
             return 0
         if args.cmd == "evaluate":
@@ -155,21 +170,37 @@ def main(argv=None):
         actor = Actor(make_env, decl, connection(args.learner, args), n_envs=args.envs, name=args.actor_name,
                       give_up=args.connect_timeout, log=lambda m: print(m, file=sys.stderr),
                       env_processes=args.env_processes)
+        failed: list = []
         if args.pcpn_samples:
             conn = connection(args.pcpn_samples, args)
-            threading.Thread(target=provide_samples, args=(make_env, decl, conn),
-                             kwargs={"seed": args.seed, "log": lambda m: print(m, file=sys.stderr)},
-                             daemon=True).start()
+
+            def feed():
+                try:
+                    provide_samples(make_env, decl, conn, seed=args.seed, n_envs=args.envs, stop=actor.stop,
+                                    log=lambda m: print(m, file=sys.stderr), name=actor.name)
+                except Exception as e:  # the actor ends with it, saying why
+                    failed.append(e)
+                    actor.stop.set()
+                finally:
+                    actor.feeding.clear()
+
+            actor.feeding.set()
+            threading.Thread(target=feed, daemon=True).start()
         try:
             s = actor.run()
         finally:
             actor.close()
+        if failed:
+            raise failed[0]
         print(f"{actor.name}: run finished; {s.rollouts} rollouts, {s.steps} env steps, {s.episodes} episodes "
               f"({s.successes} successes) in {s.seconds:.1f} s", file=sys.stderr)
         return 0
-    except (EnvError, Refused, RuntimeError, ValueError) as e:
+    except (EnvError, Refused, LinkLost, RuntimeError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("saver-actor: stopped (Ctrl-C or SIGTERM)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -35,6 +35,11 @@ class LinkLost(Exception):
     """The learner went away or forgot this actor: register again."""
 
 
+class Waiting(Exception):
+    """The learner is up but not serving yet: it waits for its PCPN (the message says
+    how far that is)."""
+
+
 class Refused(Exception):
     """The learner refused what this actor sent, for a reason reconnecting does not mend."""
 
@@ -76,8 +81,18 @@ class Summary:
     wait_seconds: float = 0.0  # time waiting for the learner's next weights
 
 
+WAITING_KEY = "x-saver-waiting"  # trailing metadata of a learner that waits for its PCPN
+
+
 def _status_error(e: grpc.RpcError, what: str) -> Exception:
     code, msg = e.code(), e.details()
+    if code == grpc.StatusCode.UNAVAILABLE:
+        try:
+            trailers = getattr(e, "trailing_metadata", lambda: ())() or ()
+        except Exception:
+            trailers = ()
+        if any(k == WAITING_KEY for k, _ in trailers):
+            return Waiting(msg)
     if code == grpc.StatusCode.OUT_OF_RANGE:
         return RunFinished(msg)
     if code in (grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.UNAUTHENTICATED,
@@ -214,6 +229,9 @@ class Actor:
                                  infos=decl.vector_reward is not None) if env_processes > 0
                      else LocalEnvs(make_env, n_envs, decl.obs_dim, decl.continuous, decl.action_dim))
         self.stop = threading.Event()
+        # Set while this process feeds the PCPN store (the learner waits for that PCPN):
+        # the actor does not give up on the learner meanwhile.
+        self.feeding = threading.Event()
         self.summary = Summary()
 
     # ---- one registration ----------------------------------------------------------
@@ -370,7 +388,7 @@ class Actor:
 
     def _run(self) -> Summary:
         start = time.monotonic()
-        attempt, last_contact = 0, time.monotonic()
+        attempt, last_contact, said_waiting = 0, time.monotonic(), 0.0
         try:
             while not self.stop.is_set():
                 before = self.summary.rollouts
@@ -386,20 +404,30 @@ class Actor:
                         return self.summary
                     if isinstance(err, Refused):
                         raise err from None
+                    if isinstance(err, Waiting):
+                        # The learner answers and waits for its PCPN: no deadline, its
+                        # progress said every 10 s.
+                        last_contact, attempt = time.monotonic(), 0
+                        if last_contact - said_waiting >= 10.0:
+                            self.log(f"{self.name}: the learner at {self.conn.url} {err}")
+                            said_waiting = last_contact
+                        self.stop.wait(2.0)
+                        continue
                     why = str(err)
                 except LinkLost as e:
                     why = str(e)
-                if self.summary.rollouts > before:
+                if self.summary.rollouts > before or self.feeding.is_set():
                     attempt, last_contact = 0, time.monotonic()
                 if time.monotonic() - last_contact > self.give_up:
                     raise LinkLost(f"{self.name}: no learner at {self.conn.url} for {self.give_up:.0f} s ({why})")
                 wait = min(0.1 * 2 ** min(attempt, 6), 5.0) * random.uniform(0.5, 1.0)
                 attempt += 1
                 if self.summary.registrations == 0 and "UNAVAILABLE" in why:
-                    # Not serving yet (a SAVER learner waits for its PCPN first): say so once.
                     if attempt == 1:
-                        self.log(f"{self.name}: no learner serving at {self.conn.url} yet; retrying for up to "
-                                 f"{self.give_up:.0f} s")
+                        gone = "no longer answers" if said_waiting else "serving yet"
+                        self.log(f"{self.name}: no learner {gone} at {self.conn.url}; retrying for up to "
+                                 f"{self.give_up:.0f} s" + (" (no limit while this actor feeds the PCPN store)"
+                                                            if self.feeding.is_set() else ""))
                 else:
                     self.log(f"{self.name}: {why}; reconnecting in {wait:.2f} s")
                 self.stop.wait(wait)

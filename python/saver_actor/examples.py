@@ -129,3 +129,80 @@ def pointmass3(radius: float = 0.05):
         return PointMass(drag=0.1, accel=1.5, radius=radius, render_mode=render_mode, n=3)
 
     return make, _pointmass_decl("pointmass3", make())
+
+
+class Reach3(gym.Env):
+    """A gripper reaching for a goal in 3-D, shaped as Gymnasium-Robotics' goal envs
+    (FetchReach): a Dict observation {"achieved_goal": gripper position (3),
+    "desired_goal": goal (3), "observation": gripper position (3) and velocity (3)},
+    a 4-D action of which the last entry (the gripper's fingers) does nothing, and a
+    sparse reward -1 until the gripper is within 0.05 (Euclidean) of the goal, with
+    info["is_success"]. Never terminates; 50 steps an episode (TimeLimit).
+
+    Each step the action moves a target point by 0.05·a[:3] (clipped to the box
+    +-0.3), and the gripper follows it with a lag: v' = 0.5·(target - p), p' = p + v'.
+    The gap target - p' is half the gap before the step plus the target's move, so it
+    stays within 0.05 and one step moves the gripper by at most 0.5·(0.05 + 0.05) = 0.05
+    per coordinate (the velocity's bound).
+    Reset: p = target = 0, v = 0, goal ~ U(-0.15, 0.15)^3 at least 0.05 from p."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
+
+    def __init__(self, render_mode=None):
+        self.render_mode = render_mode
+        box = gym.spaces.Box(-0.3, 0.3, (3,), dtype=np.float64)
+        self.observation_space = gym.spaces.Dict({
+            "achieved_goal": box, "desired_goal": box,
+            "observation": gym.spaces.Box(np.r_[[-0.3] * 3, [-0.05] * 3], np.r_[[0.3] * 3, [0.05] * 3],
+                                          dtype=np.float64)})
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+        self._p, self._v, self._target, self._goal = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+
+    def _obs(self):
+        return {"achieved_goal": self._p.copy(), "desired_goal": self._goal.copy(),
+                "observation": np.concatenate([self._p, self._v])}
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self._p, self._v, self._target = np.zeros(3), np.zeros(3), np.zeros(3)
+        while True:
+            self._goal = self.np_random.uniform(-0.15, 0.15, 3)
+            if np.linalg.norm(self._goal) >= 0.05:
+                break
+        return self._obs(), {"is_success": 0.0}
+
+    def step(self, action):
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        self._target = np.clip(self._target + 0.05 * a[:3], -0.3, 0.3)
+        self._v = 0.5 * (self._target - self._p)
+        self._p = self._p + self._v
+        success = float(np.linalg.norm(self._p - self._goal) < 0.05)
+        return self._obs(), success - 1.0, False, False, {"is_success": success}
+
+    def render(self, size: int = 128):
+        """A size x size RGB frame seen from above (x, y): the goal green, the gripper
+        white, larger the higher it is (z)."""
+        frame = np.zeros((size, size, 3), dtype=np.uint8)
+
+        def pixel(x):
+            return np.clip(((np.asarray(x) / 0.3 + 1.0) * 0.5 * (size - 1)).round().astype(int), 0, size - 1)
+
+        for point, colour, r in ((self._goal, (40, 160, 60), 3), (self._p, (255, 255, 255), 2)):
+            x, y = pixel(point[:2])
+            r = r + int(round(2 * point[2] / 0.3))
+            frame[max(y - r, 0):y + r + 1, max(x - r, 0):x + r + 1] = colour
+        return frame
+
+
+def reach3(radius: float = 0.03):
+    """Reach3 as a user brings a goal env: FlattenObservation of its Dict observation
+    (keys in sorted order: achieved_goal obs[0:3], desired_goal obs[3:6], then the
+    gripper's position and velocity obs[6:12]); p = obs[0:3], g = obs[3:6], success
+    within `radius` of g in every coordinate (0.03 lies inside the env's own 0.05
+    Euclidean ball). One step moves the gripper by at most 0.05 (Reach3)."""
+    def make_env(render_mode=None):
+        return gym.wrappers.TimeLimit(gym.wrappers.FlattenObservation(Reach3(render_mode=render_mode)), 50)
+
+    decl = EnvDecl.for_env(make_env(), name="reach3", aligned="0:3", goal="3:6", max_change=0.05,
+                           success_radius=radius)
+    return make_env, decl

@@ -135,9 +135,8 @@ pub fn status(args: StatusArgs) -> Result<()> {
 /// A failed Status call, with what it may mean.
 fn not_answering(url: &str, e: anyhow::Error) -> anyhow::Error {
     e.context(format!(
-        "no Status answer from the learner at {url} (a learner that is starting serves \
-         once its PCPN is in hand, which may mean minutes of pretraining; its log says \
-         what it waits for)"
+        "no Status answer from the learner at {url} (is `saver learner` running there? \
+         while it waits for its PCPN it answers Status with what it waits for)"
     ))
 }
 
@@ -145,7 +144,19 @@ fn print_status(s: &pb::StatusReply, json: bool) {
     use serde_json::Value;
     // One list of fields for both forms (mean_ep_len_100: JSON null before the first
     // episode, NaN in text).
-    let fields: [(&str, Value); 13] = [
+    let pretrain = s.pretrain.as_ref().map(|p| {
+        serde_json::json!({
+            "phase": p.phase,
+            "samples_received": p.samples_received,
+            "samples_total": p.samples_total,
+            "providers": p.providers,
+            "batches_done": p.batches_done,
+            "batches": p.batches,
+            "seconds": p.seconds,
+            "eta_seconds": p.eta_seconds,
+        })
+    });
+    let fields: [(&str, Value); 15] = [
         ("algo", s.algo.clone().into()),
         ("env", s.env.clone().into()),
         ("mode", s.mode.clone().into()),
@@ -159,6 +170,8 @@ fn print_status(s: &pb::StatusReply, json: bool) {
         ("skipped_updates", s.skipped_updates.into()),
         ("mean_ep_len_100", s.mean_ep_len_100.into()),
         ("finished", s.finished.into()),
+        ("waiting", s.waiting.clone().into()),
+        ("pretrain", pretrain.unwrap_or(Value::Null)),
     ];
     if json {
         let map: serde_json::Map<String, Value> = fields
@@ -170,6 +183,10 @@ fn print_status(s: &pb::StatusReply, json: bool) {
     }
     for (k, v) in fields {
         match v {
+            // Empty while the learner trains; the pretraining's progress is in `waiting`.
+            Value::String(t) if t.is_empty() && k == "waiting" => {}
+            Value::Null if k == "pretrain" => {}
+            Value::Object(_) => {}
             Value::String(t) => crate::out!("{k} {t}"),
             Value::Null => crate::out!("{k} NaN"),
             v => crate::out!("{k} {v}"),

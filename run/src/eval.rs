@@ -197,6 +197,22 @@ pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
 /// Runs `saver eval`.
 pub fn run(args: EvalArgs) -> Result<()> {
     let (settings, weights) = load(&args.source)?;
+    if settings.env.kind().is_none() {
+        let file = if args.source.is_dir() {
+            args.source.join(saver_learner::best::POLICY_FILE)
+        } else {
+            args.source.clone()
+        };
+        bail!(
+            "{} is a custom env, which only its own Python code can step: play these weights \
+             there with `saver-actor enjoy --factory MODULE:FUNCTION --weights {}` (each \
+             deterministic episode's return and success; --video to record it), or evaluate \
+             a running learner's versions with `saver-actor evaluate` (docs/GUIDE.md \
+             \"Bring your own environment\")",
+            settings.env,
+            file.display()
+        );
+    }
     let version = weights.version;
     let (r, paths) = evaluate(
         &settings,

@@ -13,6 +13,7 @@ use saver_core::config::RunConfig;
 use saver_core::nets::Pcpn;
 use saver_core::settings::RunSettings;
 use saver_learner::grpc::{LearnerService, TrainerStatus};
+use saver_learner::waiting::{serve_waiting, Waiting, WaitingLearner};
 use saver_learner::TrainerOutcome;
 use saver_pcpn_trainer::service::{fetch, PcpnService};
 use saver_pcpn_trainer::{load_pcpn_bytes, PcpnStore};
@@ -55,23 +56,6 @@ async fn bind(addr: SocketAddr) -> Result<tokio::net::TcpListener> {
     tokio::net::TcpListener::bind(addr)
         .await
         .with_context(|| format!("listening on {addr}"))
-}
-
-/// `work`, saying every 30 s that it still waits for `what`.
-async fn waiting<T>(work: impl std::future::Future<Output = T>, what: &str) -> T {
-    let start = std::time::Instant::now();
-    tokio::pin!(work);
-    let mut tick = tokio::time::interval(Duration::from_secs(30));
-    tick.tick().await;
-    loop {
-        tokio::select! {
-            out = &mut work => return out,
-            _ = tick.tick() => eprintln!(
-                "still waiting for {what} ({:.0} s)",
-                start.elapsed().as_secs_f64()
-            ),
-        }
-    }
 }
 
 /// Resolves on Ctrl-C or SIGTERM.
@@ -196,34 +180,34 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     crate::pretrain::pin_saved(&mut config, saved);
     let rt = runtime()?;
     metrics_on(&rt, args.metrics, &args.access)?;
-    let pcpn = match (config.algo, args.pcpn.as_deref()) {
-        (Algo::Saver, Some(url)) if url.starts_with("http://") || url.starts_with("https://") => {
-            eprintln!(
-                "waiting for the PCPN of {} from {url} (the store pretrains it first if it \
-                 has none: {} batches); serving starts once it is in hand",
-                config.env, config.pretrain.batches
-            );
-            let bytes = rt
-                .block_on(waiting(
-                    fetch(url, &config.env, &config.pretrain, &pcpn_access),
-                    &format!("the PCPN from {url}"),
-                ))
-                .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?;
-            let shown = PathBuf::from(format!("{url} ({})", config.env));
-            let (pcpn, info) = load_pcpn_bytes(&bytes, &shown, &config.env, &saver_core::device())
-                .map_err(|e| anyhow::anyhow!("FAILED_PRECONDITION: {e}"))?;
-            eprintln!("PCPN from {url}: weights sha256 {}", info.weights_sha256);
-            // A pinned run (resumed, or named in its config) refuses other weights.
-            record(&mut config, &info)?;
-            Some(pcpn)
-        }
-        (_, file) => pcpn_for_run(
-            &mut config,
-            &PcpnStore::new(&args.pcpn_dir),
-            file.map(Path::new),
-        )?,
-    };
     let listener = rt.block_on(bind(args.listen))?;
+    let (quit_tx, quit_rx) = tokio::sync::watch::channel(false);
+    rt.spawn(async move {
+        terminated().await;
+        let _ = quit_tx.send(true);
+    });
+    let pcpn = if config.algo == Algo::Saver {
+        // The port answers at once: Status says what the learner waits for, actors
+        // are told to keep waiting. The trained service takes the port over after.
+        let std = listener.into_std()?;
+        let (ours, theirs) = (std.try_clone()?, std);
+        let _in_rt = rt.enter();
+        let listener = tokio::net::TcpListener::from_std(ours)?;
+        let first = Waiting {
+            algo: config.algo.name().into(),
+            env: config.env.to_string(),
+            mode: config.mode.name().into(),
+            what: "the PCPN".into(),
+            pretrain: None,
+        };
+        let pcpn = while_waiting(&rt, first, &check, theirs, quit_rx.clone(), |about| {
+            obtain_for_learner(&rt, &mut config, &args, &pcpn_access, about)
+        })?;
+        (pcpn, listener)
+    } else {
+        (None, listener)
+    };
+    let (pcpn, listener) = pcpn;
     let opts = LearnerOptions {
         out,
         round_timeout: Duration::from_secs_f64(args.round_timeout),
@@ -233,9 +217,189 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         access: check,
     };
     let out = opts.out.clone();
-    let outcome = serve_learner(&rt, &config, pcpn, opts, listener, terminated())?;
+    let mut quit = quit_rx;
+    let shutdown = async move {
+        let _ = quit.wait_for(|q| *q).await;
+    };
+    let outcome = serve_learner(&rt, &config, pcpn, opts, listener, shutdown)?;
     report(&config, &outcome, &out);
     Ok(())
+}
+
+/// Runs `obtain` (the learner's PCPN) while a [`WaitingLearner`] serves `listener`:
+/// Status says what `obtain` reports through its sender, every other call is answered
+/// "waiting" so that actors keep waiting. Ctrl-C or SIGTERM meanwhile ends the process
+/// (nothing is trained or written before the PCPN is in hand).
+fn while_waiting<T>(
+    rt: &tokio::runtime::Runtime,
+    first: Waiting,
+    access: &saver_proto::Access,
+    listener: std::net::TcpListener,
+    mut quit: tokio::sync::watch::Receiver<bool>,
+    obtain: impl FnOnce(&tokio::sync::watch::Sender<Waiting>) -> Result<T>,
+) -> Result<T> {
+    let (about, about_rx) = tokio::sync::watch::channel(first);
+    let waiting = Arc::new(AtomicBool::new(true));
+    let flag = waiting.clone();
+    rt.spawn(async move {
+        let _ = quit.wait_for(|q| *q).await;
+        if flag.load(Ordering::SeqCst) {
+            eprintln!("learner: stopped while waiting for its PCPN (nothing trained or written)");
+            std::process::exit(130);
+        }
+    });
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let server = {
+        let _in_rt = rt.enter();
+        let listener = tokio::net::TcpListener::from_std(listener)?;
+        rt.spawn(serve_waiting(
+            WaitingLearner::new(about_rx, access.clone()),
+            listener,
+            async move {
+                let _ = stopped.await;
+            },
+        ))
+    };
+    let out = obtain(&about);
+    waiting.store(false, Ordering::SeqCst);
+    let _ = stop.send(());
+    rt.block_on(server)?
+        .context("serving while waiting for the PCPN")?;
+    out
+}
+
+/// The learner's PCPN: from a pcpn-trainer (saying how far its pretraining is every
+/// 10 s, here and through `about`), or from a file or the local store.
+fn obtain_for_learner(
+    rt: &tokio::runtime::Runtime,
+    config: &mut RunConfig,
+    args: &LearnerArgs,
+    pcpn_access: &saver_proto::ClientAccess,
+    about: &tokio::sync::watch::Sender<Waiting>,
+) -> Result<Option<Pcpn>> {
+    let Some(url) = args
+        .pcpn
+        .as_deref()
+        .filter(|u| u.starts_with("http://") || u.starts_with("https://"))
+    else {
+        about.send_modify(|w| {
+            w.what = "the PCPN, pretrained here (the learner's log shows how far)".into()
+        });
+        return pcpn_for_run(
+            config,
+            &PcpnStore::new(&args.pcpn_dir),
+            args.pcpn.as_deref().map(Path::new),
+        );
+    };
+    eprintln!(
+        "waiting for the PCPN of {} from {url} (the store pretrains it first if it has none: \
+         {}); serving starts once it is in hand",
+        config.env, config.pretrain
+    );
+    let bytes = rt
+        .block_on(async {
+            reach_store(url, pcpn_access, about).await?;
+            let work = fetch(url, &config.env, &config.pretrain, pcpn_access);
+            tokio::pin!(work);
+            let mut tick = tokio::time::interval(saver_pcpn_trainer::samples::SAY_EVERY);
+            let start = std::time::Instant::now();
+            loop {
+                tokio::select! {
+                    out = &mut work => return out,
+                    _ = tick.tick() => {
+                        let p = store_progress(url, pcpn_access).await;
+                        let what = match &p {
+                            Ok(Some(p)) => format!("the PCPN from {url}: {}", p.line),
+                            Ok(None) => format!("the PCPN from {url} (no pretraining in progress there: \
+                                                 it is being sent, or another pretraining goes first)"),
+                            Err(e) => format!("the PCPN from {url} (its Progress: {})", e.message()),
+                        };
+                        if start.elapsed() > Duration::from_secs(1) {
+                            eprintln!("still waiting for {what} ({:.0} s)", start.elapsed().as_secs_f64());
+                        }
+                        about.send_modify(|w| {
+                            w.what = what;
+                            w.pretrain = p.ok().flatten();
+                        });
+                    }
+                }
+            }
+        })
+        .map_err(|s| {
+            let hint = if s.code() == tonic::Code::Unavailable {
+                format!(
+                    " (is a pcpn-trainer running at {url}? Start one with `saver pcpn-trainer \
+                     --listen HOST:PORT`, or leave out --pcpn to pretrain here)"
+                )
+            } else {
+                String::new()
+            };
+            anyhow::anyhow!("{}: {}{hint}", s.code(), s.message())
+        })?;
+    let shown = PathBuf::from(format!("{url} ({})", config.env));
+    let (pcpn, info) = load_pcpn_bytes(&bytes, &shown, &config.env, &saver_core::device())
+        .map_err(|e| anyhow::anyhow!("FAILED_PRECONDITION: {e}"))?;
+    eprintln!("PCPN from {url}: weights sha256 {}", info.weights_sha256);
+    // A pinned run (resumed, or named in its config) refuses other weights.
+    record(config, &info)?;
+    Ok(Some(pcpn))
+}
+
+/// How long a learner retries a pcpn-trainer it cannot reach (started beside it, the
+/// store may come up a moment later).
+const STORE_RETRY: Duration = Duration::from_secs(60);
+
+/// Waits until the store at `url` accepts a connection, for up to [`STORE_RETRY`]
+/// (saying so once); then UNAVAILABLE with the last error.
+async fn reach_store(
+    url: &str,
+    access: &saver_proto::ClientAccess,
+    about: &tokio::sync::watch::Sender<Waiting>,
+) -> Result<(), tonic::Status> {
+    let start = std::time::Instant::now();
+    let mut said = false;
+    loop {
+        let err = match access.endpoint(url) {
+            Ok(e) => match e.connect().await {
+                Ok(_) => return Ok(()),
+                Err(e) => e.to_string(),
+            },
+            // A malformed URL does not mend: fetch says what is wrong with it.
+            Err(_) => return Ok(()),
+        };
+        if start.elapsed() >= STORE_RETRY {
+            return Err(tonic::Status::unavailable(format!(
+                "the PCPN store {url}: {err} (for {} s)",
+                STORE_RETRY.as_secs()
+            )));
+        }
+        if !said {
+            eprintln!(
+                "no pcpn-trainer answers at {url} yet ({err}); retrying for up to {} s",
+                STORE_RETRY.as_secs()
+            );
+            about.send_modify(|w| w.what = format!("a pcpn-trainer to answer at {url}"));
+            said = true;
+        }
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+}
+
+/// How far the store at `url` is with its pretraining (None: none in progress).
+async fn store_progress(
+    url: &str,
+    access: &saver_proto::ClientAccess,
+) -> Result<Option<saver_proto::pb::PretrainProgress>, tonic::Status> {
+    use saver_proto::pb::pcpn_store_client::PcpnStoreClient;
+    let channel = access
+        .endpoint(url)
+        .map_err(|e| tonic::Status::unavailable(e.to_string()))?
+        .connect()
+        .await
+        .map_err(|e| tonic::Status::unavailable(e.to_string()))?;
+    let mut client = PcpnStoreClient::with_interceptor(channel, access.token.clone());
+    let r = client.progress(saver_proto::pb::ProgressRequest {}).await?;
+    Ok(r.into_inner().pretraining.into_iter().next())
 }
 
 /// How a served learner runs besides its config.
@@ -414,12 +578,34 @@ pub fn pcpn_trainer(args: PcpnTrainerArgs) -> Result<()> {
         args.store.display(),
         listener.local_addr()?
     );
-    rt.block_on(saver_pcpn_trainer::service::serve(
-        PcpnService::new(&args.store)
-            .with_access(check)
-            .with_sample_deadline(std::time::Duration::from_secs_f64(args.pretrain_deadline)),
-        listener,
-        terminated(),
-    ))?;
+    // A signal stops the server; a pretraining still training then (nothing of it is
+    // stored) is given up with the runtime after a short grace.
+    let (quit_tx, quit_rx) = tokio::sync::watch::channel(false);
+    rt.spawn(async move {
+        terminated().await;
+        let _ = quit_tx.send(true);
+    });
+    let quit = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
+        let _ = rx.wait_for(|q| *q).await;
+    };
+    let served = rt.block_on(async {
+        let server = saver_pcpn_trainer::service::serve(
+            PcpnService::new(&args.store)
+                .with_access(check)
+                .with_sample_deadline(std::time::Duration::from_secs_f64(args.pretrain_deadline)),
+            listener,
+            quit(quit_rx.clone()),
+        );
+        tokio::select! {
+            r = server => r.map_err(anyhow::Error::from),
+            _ = async { quit(quit_rx).await; tokio::time::sleep(Duration::from_secs(3)).await } => {
+                eprintln!("pcpn-trainer: stopped during a pretraining (nothing of it is stored)");
+                Ok(())
+            }
+        }
+    });
+    rt.shutdown_timeout(Duration::from_millis(500));
+    served?;
+    eprintln!("pcpn-trainer: stopped");
     Ok(())
 }

@@ -330,10 +330,20 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
         crate::out!("  actions     {}", histogram.display());
     }
     crate::out!("  checkpoint  {}", o.checkpoint.display());
-    crate::out!(
-        "  policy      {} (any client: saver eval, saver_actor.Policy.load)",
-        out.join(saver_learner::best::POLICY_FILE).display()
-    );
+    let policy = out.join(saver_learner::best::POLICY_FILE);
+    match config.env.kind() {
+        Some(_) => crate::out!(
+            "  policy      {} (any client: saver eval, saver_actor.Policy.load)",
+            policy.display()
+        ),
+        // Only the env's own Python code steps a custom env.
+        None => crate::out!(
+            "  policy      {} (play it: saver-actor enjoy --factory MODULE:FUNCTION --weights {}; \
+             saver_actor.Policy.load)",
+            policy.display(),
+            policy.display()
+        ),
+    }
     let best = out.join(saver_learner::best::BEST_FILE);
     if best.exists() {
         crate::out!(

@@ -20,6 +20,7 @@ fn settings() -> PretrainConfig {
         quantiles: 8,
         seed: 7,
         samples: SampleDistribution::Reset,
+        walk_samples: 0,
     }
 }
 

@@ -26,7 +26,24 @@ pub struct PretrainConfig {
     pub seed: u64,
     /// The sample distribution.
     pub samples: SampleDistribution,
+    /// Walk samples only (custom envs): the distinct transitions the actors stream;
+    /// each batch draws its rows from them at random, with replacement. 0: every row
+    /// of every batch is a fresh streamed transition (batches x batch_size of them).
+    /// Left out of a file (and of the store's key) when 0, so the keys of every PCPN
+    /// pretrained before the field existed stay the same.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub walk_samples: u64,
 }
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
+}
+
+/// The streamed transitions a custom env's PCPN is pretrained from by default
+/// (`pretrain.walk_samples`): the held-out loss on Reacher-v5 and the point mass stops
+/// improving below this many (results/pcpn-samples/README.md; bench/pcpn_samples.py),
+/// a tenth of the 640,000 fresh ones that 5,000 batches of 128 would read.
+pub const DEFAULT_WALK_SAMPLES: u64 = 65_536;
 
 /// Held-out batches of the pretraining report (fresh samples, fixed τ stream).
 pub const PRETRAIN_EVAL_BATCHES: usize = 16;
@@ -84,6 +101,7 @@ impl PretrainConfig {
             quantiles: 32,
             seed: 0,
             samples: SampleDistribution::Reset,
+            walk_samples: 0,
         }
     }
 
@@ -97,11 +115,26 @@ impl PretrainConfig {
     }
 
     /// These settings for `env`: its sample distribution (a custom env's PCPN learns
-    /// from streamed walks).
+    /// from [`DEFAULT_WALK_SAMPLES`] streamed walk transitions).
     pub fn for_env(self, env: &EnvSpec) -> Self {
+        let samples = SampleDistribution::for_env(env);
         Self {
-            samples: SampleDistribution::for_env(env),
+            samples,
+            walk_samples: match samples {
+                SampleDistribution::Walk => DEFAULT_WALK_SAMPLES,
+                SampleDistribution::Reset => 0,
+            },
             ..self
+        }
+    }
+
+    /// Streamed transitions a pretraining with these settings reads (walk samples):
+    /// the held-out ones, then `walk_samples` (or one per row of every batch).
+    pub fn streamed_total(&self) -> u64 {
+        let held = (PRETRAIN_EVAL_BATCHES * self.batch_size) as u64;
+        held + match self.walk_samples {
+            0 => self.batches * self.batch_size as u64,
+            n => n,
         }
     }
 
@@ -148,6 +181,28 @@ impl PretrainConfig {
                 format!("{} is not in 1..=1024", self.quantiles),
             );
         }
+        if self.walk_samples != 0 && self.samples == SampleDistribution::Reset {
+            return bad(
+                "walk_samples",
+                format!(
+                    "{}: only walk samples (a custom env's, streamed by its actors) are \
+                     gathered in a fixed number; a built-in env draws fresh samples for \
+                     every batch (set 0)",
+                    self.walk_samples
+                ),
+            );
+        }
+        if self.walk_samples > 100_000_000
+            || (1..self.batch_size as u64).contains(&self.walk_samples)
+        {
+            return bad(
+                "walk_samples",
+                format!(
+                    "{} is not 0 (fresh samples) or in {}..=1e8 (at least one batch)",
+                    self.walk_samples, self.batch_size
+                ),
+            );
+        }
         Ok(())
     }
 
@@ -186,10 +241,69 @@ mod tests {
                 batch_size: 64,
                 ..p
             },
+            PretrainConfig {
+                samples: SampleDistribution::Walk,
+                ..p
+            },
+            PretrainConfig {
+                samples: SampleDistribution::Walk,
+                walk_samples: 65_536,
+                ..p
+            },
         ];
         for o in others {
             assert_ne!(o.key(&env), k, "{o:?}");
         }
         assert_ne!(p.key(&EnvSpec::new(EnvKind::Angle, 2).unwrap()), k);
+        // A PCPN pretrained before walk_samples existed keeps its key: the field is
+        // not serialised at 0. (The key of the committed angle-d4 PCPN's settings.)
+        let json = serde_json::to_string(&p).unwrap();
+        assert!(!json.contains("walk_samples"), "{json}");
+    }
+
+    /// walk_samples: refused for reset samples and below one batch; the streamed
+    /// total is the held-out rows plus the walk samples (or one per batch row).
+    #[test]
+    fn walk_samples_set_how_many_transitions_are_streamed() {
+        let p = PretrainConfig::recommended(EnvKind::Angle);
+        let e = PretrainConfig {
+            walk_samples: 1000,
+            ..p
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("pretrain.walk_samples") && e.contains("fresh samples"),
+            "{e}"
+        );
+        let w = PretrainConfig {
+            samples: SampleDistribution::Walk,
+            ..p
+        };
+        // 16 held-out batches of 128 = 2,048, plus 5,000 x 128 = 640,000.
+        assert_eq!(w.streamed_total(), 2_048 + 640_000);
+        assert_eq!(
+            PretrainConfig {
+                walk_samples: 65_536,
+                ..w
+            }
+            .streamed_total(),
+            2_048 + 65_536
+        );
+        let e = PretrainConfig {
+            walk_samples: 100,
+            ..w
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("in 128..=1e8"), "{e}");
+        assert!(PretrainConfig {
+            walk_samples: 128,
+            ..w
+        }
+        .validate()
+        .is_ok());
     }
 }

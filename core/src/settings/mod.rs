@@ -103,6 +103,8 @@ pub struct PretrainSettings {
     pub seed: Option<u64>,
     #[arg(id = "pretrain_samples", value_name = "SAMPLES", long = "pretrain-samples", value_enum, help = help("Pretraining sample distribution", "pretrain.samples"))]
     pub samples: Option<SampleDistribution>,
+    #[arg(id = "pretrain_walk_samples", value_name = "N", long = "pretrain-walk-samples", help = help("A custom env's distinct streamed transitions, each batch drawn from them (0: fresh ones for every batch row)", "pretrain.walk_samples"))]
+    pub walk_samples: Option<u64>,
 }
 
 /// The policy head's bounds: `[head]` in a file.

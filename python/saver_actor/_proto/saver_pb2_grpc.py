@@ -5,7 +5,7 @@ import warnings
 
 from . import saver_pb2 as saver__pb2
 
-GRPC_GENERATED_VERSION = '1.85.1'
+GRPC_GENERATED_VERSION = '1.85.4'
 GRPC_VERSION = grpc.__version__
 _version_not_supported = False
 
@@ -301,6 +301,11 @@ class PcpnStoreStub:
                 request_serializer=saver__pb2.PretrainRequest.SerializeToString,
                 response_deserializer=saver__pb2.PretrainReply.FromString,
                 _registered_method=True)
+        self.Progress = channel.unary_unary(
+                '/saver.v1.PcpnStore/Progress',
+                request_serializer=saver__pb2.ProgressRequest.SerializeToString,
+                response_deserializer=saver__pb2.ProgressReply.FromString,
+                _registered_method=True)
 
 
 class PcpnStoreServicer:
@@ -335,6 +340,13 @@ class PcpnStoreServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def Progress(self, request, context):
+        """The pretraining in progress, if any.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_PcpnStoreServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -357,6 +369,11 @@ def add_PcpnStoreServicer_to_server(servicer, server):
                     servicer.Pretrain,
                     request_deserializer=saver__pb2.PretrainRequest.FromString,
                     response_serializer=saver__pb2.PretrainReply.SerializeToString,
+            ),
+            'Progress': grpc.unary_unary_rpc_method_handler(
+                    servicer.Progress,
+                    request_deserializer=saver__pb2.ProgressRequest.FromString,
+                    response_serializer=saver__pb2.ProgressReply.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -467,6 +484,33 @@ class PcpnStore:
             '/saver.v1.PcpnStore/Pretrain',
             saver__pb2.PretrainRequest.SerializeToString,
             saver__pb2.PretrainReply.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def Progress(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/saver.v1.PcpnStore/Progress',
+            saver__pb2.ProgressRequest.SerializeToString,
+            saver__pb2.ProgressReply.FromString,
             options,
             channel_credentials,
             insecure,
