@@ -74,8 +74,9 @@ def pretrain(saver, factory, count, batches, seed, store_dir):
                         p = stub.Progress(pb.ProgressRequest(), timeout=5).pretraining
                     except grpc.RpcError:
                         continue
-                    if p and samples_done[0] is None and p[0].samples_total and \
-                            p[0].samples_received >= p[0].samples_total:
+                    # The samples are all in when the batches begin (walk_samples > 0; with
+                    # 0 they arrive as the batches need them).
+                    if p and samples_done[0] is None and p[0].phase == "batches":
                         samples_done[0] = time.time() - start
 
         threading.Thread(target=watch, daemon=True).start()
