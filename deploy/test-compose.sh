@@ -57,6 +57,8 @@ until v=$(field version) && a=$(field actors) && [ -n "$v" ] && [ "$v" -ge 50 ] 
   sleep 2
 done
 echo "   learner at version $v with $a actors"
+s0=$(field steps); t0=$(date +%s.%N); sleep 20; s1=$(field steps); t1=$(date +%s.%N)
+echo "   $(awk -v a="$s0" -v b="$s1" -v x="$t0" -v y="$t1" 'BEGIN { printf "%.0f", (b - a) / (y - x) }') steps/s with 16 actors (compare deploy/test-swarm.sh's)"
 n=$(compose logs actor 2>/dev/null | grep -c "reading weights from the learner's files" || true)
 [ "$n" -ge 16 ] || { echo "error: $n of 16 actors read the shared weights volume" >&2; exit 1; }
 echo "   $n actor registrations read the weights from the shared volume"

@@ -109,9 +109,9 @@ pub fn run_remote(a: &RemoteActor, stop: &AtomicBool) -> Result<ActorSummary, Re
             Err(ActorError::Link(LinkError::Finished(_))) => return Ok(total),
             Err(ActorError::Link(LinkError::Closed(why))) => why,
             Err(ActorError::Link(LinkError::Waiting(why))) => {
-                // Up and waiting for its PCPN: no deadline; its progress every 30 s.
+                // Up and waiting for its PCPN: no deadline; its progress every 10 s.
                 last_contact = Instant::now();
-                if said_waiting.is_none_or(|t| t.elapsed() >= Duration::from_secs(30)) {
+                if said_waiting.is_none_or(|t| t.elapsed() >= Duration::from_secs(10)) {
                     eprintln!("{}: the learner at {} {why}", a.name, a.learner);
                     said_waiting = Some(Instant::now());
                 }

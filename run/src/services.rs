@@ -504,7 +504,7 @@ pub struct ActorArgs {
     /// Env instances stepped per rollout.
     #[arg(long, default_value_t = 1)]
     pub envs: u32,
-    /// Name in the learner's logs (default: actor-<process id>).
+    /// Name in the learner's logs (default: actor-<host name>-<process id>).
     #[arg(long)]
     pub name: Option<String>,
     /// Give up after this many seconds without reaching the learner (at start-up or
@@ -524,14 +524,26 @@ pub struct ActorArgs {
     pub access: ClientArgs,
 }
 
+/// `actor-<host>-<process id>` (`actor-<process id>` where the host has no name):
+/// containers all run as process 1, so their host names (in a swarm or compose, the
+/// container's) tell them apart.
+fn default_actor_name() -> String {
+    let host = std::fs::read_to_string("/etc/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty() && h.len() <= 64);
+    match host {
+        Some(h) => format!("actor-{h}-{}", std::process::id()),
+        None => format!("actor-{}", std::process::id()),
+    }
+}
+
 /// Runs `saver actor` ([`run_remote`]).
 pub fn actor(args: ActorArgs) -> Result<()> {
     let a = RemoteActor {
         learner: args.learner.clone(),
-        name: args
-            .name
-            .clone()
-            .unwrap_or_else(|| format!("actor-{}", std::process::id())),
+        name: args.name.clone().unwrap_or_else(default_actor_name),
         envs: args.envs,
         give_up: Duration::from_secs(args.connect_timeout),
         shared_weights: !args.no_shared_weights,

@@ -164,7 +164,11 @@ pub fn start_learner(
                 String::new()
             }
         );
-        start.version = start.version.max(newest);
+        // The first version served is above every one published before: the
+        // checkpoint's weights are not those the killed learner published as `newest`.
+        if dropped > 0 {
+            start.version = start.version.max(newest + 1);
+        }
     }
     let initial = PolicyWeights {
         version: start.version,

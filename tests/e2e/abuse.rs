@@ -315,11 +315,12 @@ fn a_run_killed_after_its_checkpoint_resumes_cleanly() {
     assert!(stale.exists());
 
     // The restart with one of its two actors back: it goes ahead after the round
-    // deadline, versions continue above 20 (the newest published), the temporary is
-    // gone and metrics.csv holds no row twice.
+    // deadline, versions continue above 20 (the newest published: the checkpoint's
+    // weights are served as 21, not as a second 20), the temporary is gone and
+    // metrics.csv holds no row twice.
     let learner = start_learner(&longer, &dir, None, stop.clone(), 0).unwrap();
     assert_eq!(learner.start.steps, first.steps);
-    assert_eq!(learner.hub.latest().version, 20);
+    assert_eq!(learner.hub.latest().version, 21);
     assert!(!stale.exists());
     learner.hub.set_round_timeout(Duration::from_millis(200));
     let mut link = InProcessLink::new(learner.hub.clone());
@@ -344,7 +345,7 @@ fn a_run_killed_after_its_checkpoint_resumes_cleanly() {
         .collect();
     let versions: Vec<u64> = rows.iter().map(|r| r[1] as u64).collect();
     assert_eq!(&versions[..10], &(1..=10).collect::<Vec<_>>()[..]);
-    assert_eq!(versions[10], 21, "{versions:?}");
+    assert_eq!(versions[10], 22, "{versions:?}");
     for w in rows.windows(2) {
         assert!(
             w[1][0] > w[0][0] && w[1][1] > w[0][1],
