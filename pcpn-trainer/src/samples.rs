@@ -416,20 +416,10 @@ impl SampleSource for Pool {
     }
 
     fn sample(&mut self, n: usize) -> Result<Samples> {
-        let (xw, d) = (self.layout.pcpn_input_dim(), self.layout.aligned_dim);
-        let mut out = Samples {
-            x: Vec::with_capacity(n * xw),
-            delta: Vec::with_capacity(n * d),
-            n,
-        };
-        for _ in 0..n {
-            let i = self.rng.random_range(0..self.samples.n);
-            out.x
-                .extend_from_slice(&self.samples.x[i * xw..(i + 1) * xw]);
-            out.delta
-                .extend_from_slice(&self.samples.delta[i * d..(i + 1) * d]);
-        }
-        Ok(out)
+        let rows: Vec<usize> = (0..n)
+            .map(|_| self.rng.random_range(0..self.samples.n))
+            .collect();
+        Ok(gather(&self.samples, self.layout, &rows))
     }
 }
 
@@ -508,22 +498,27 @@ impl SampleSource for Replay {
     }
 
     fn sample(&mut self, n: usize) -> Result<Samples> {
-        let (xw, d) = (self.layout.pcpn_input_dim(), self.layout.aligned_dim);
-        let mut out = Samples {
-            x: Vec::with_capacity(n * xw),
-            delta: Vec::with_capacity(n * d),
-            n,
-        };
-        for _ in 0..n {
-            let i = self.at % self.samples.n.max(1);
-            self.at += 1;
-            out.x
-                .extend_from_slice(&self.samples.x[i * xw..(i + 1) * xw]);
-            out.delta
-                .extend_from_slice(&self.samples.delta[i * d..(i + 1) * d]);
-        }
-        Ok(out)
+        let rows: Vec<usize> = (self.at..self.at + n)
+            .map(|i| i % self.samples.n.max(1))
+            .collect();
+        self.at += n;
+        Ok(gather(&self.samples, self.layout, &rows))
     }
+}
+
+/// Rows `rows` of `from` (samples of `layout`), in that order.
+fn gather(from: &Samples, layout: saver_core::env::EnvLayout, rows: &[usize]) -> Samples {
+    let (xw, d) = (layout.pcpn_input_dim(), layout.aligned_dim);
+    let mut out = Samples {
+        x: Vec::with_capacity(rows.len() * xw),
+        delta: Vec::with_capacity(rows.len() * d),
+        n: rows.len(),
+    };
+    for &i in rows {
+        out.x.extend_from_slice(&from.x[i * xw..(i + 1) * xw]);
+        out.delta.extend_from_slice(&from.delta[i * d..(i + 1) * d]);
+    }
+    out
 }
 
 /// A provider's batch as samples of `spec`, at most `room` of them, every value
@@ -755,6 +750,38 @@ mod tests {
         drawn.sort_unstable();
         assert_eq!(drawn, (held as u32..total).collect::<Vec<_>>());
         assert!(source.sample(1).is_err(), "more than announced");
+    }
+
+    /// walk_samples: the held-out rows first, then a pool of the next 1,000 that
+    /// batches draw from with replacement (every draw one of those 1,000, none of the
+    /// held-out ones, and with 20,000 draws nearly all of them: the chance that one row
+    /// is never drawn is (1 - 1/1000)^20000 = e^-20, so all 1,000 appear), and the
+    /// held-out replay serves its rows in order, again from the start.
+    #[test]
+    fn a_pool_draws_its_rows_with_replacement() {
+        let hub = Arc::new(SampleHub::default());
+        let s = spec();
+        let mut source = hub.source(&s, 1_100, 7).unwrap();
+        hub.deliver(&s, check_batch(&s, &batch(0, 1_100), 1_100).unwrap());
+        let mut held = source.held_out(100).unwrap();
+        let mut pool = source.into_pool(1_000).unwrap();
+        let ids =
+            |b: Samples| -> Vec<u32> { b.delta.iter().map(|d| (d * 1e5).round() as u32).collect() };
+        let mut drawn: Vec<u32> = (0..20)
+            .flat_map(|_| ids(pool.sample(1_000).unwrap()))
+            .collect();
+        assert_eq!(drawn.len(), 20_000);
+        assert!(
+            drawn.iter().all(|i| (100..1_100).contains(i)),
+            "only pool rows"
+        );
+        drawn.sort_unstable();
+        drawn.dedup();
+        assert_eq!(drawn.len(), 1_000, "every pool row drawn");
+        let first = ids(held.sample(60).unwrap());
+        let again = ids(held.sample(60).unwrap());
+        assert_eq!(first, (0..60).collect::<Vec<_>>());
+        assert_eq!(again, (60..100).chain(0..20).collect::<Vec<_>>());
     }
 
     #[test]
