@@ -1,15 +1,8 @@
 //! The binary as a user runs it: bad input gets a message naming the problem, a run
 //! leaves its files, PCPNs are cached and refused for another env.
 
-use crate::temp_dir;
+use crate::{saver, temp_dir};
 use std::process::{Command, Output};
-
-fn saver(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_saver"))
-        .args(args)
-        .output()
-        .expect("the saver binary runs")
-}
 
 /// `saver train --algo saver --steps 256 --out <out>` plus `extra`.
 fn train_saver(out: &std::path::Path, extra: &[&str]) -> Output {

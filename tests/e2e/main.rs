@@ -11,6 +11,15 @@ mod processes;
 mod tls;
 
 use std::path::PathBuf;
+use std::process::{Command, Output};
+
+/// Runs the `saver` binary with `args` to its end.
+pub fn saver(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_saver"))
+        .args(args)
+        .output()
+        .expect("the saver binary runs")
+}
 
 /// A fresh, empty temporary folder for one test.
 pub fn temp_dir(name: &str) -> PathBuf {

@@ -8,7 +8,6 @@ use saver_core::env::{EnvKind, EnvSpec};
 use saver_pcpn_trainer::service::{fetch, serve, PcpnService};
 use saver_pcpn_trainer::{load_pcpn, PcpnStore, StoreError};
 use std::path::Path;
-use std::process::Command;
 
 /// Small settings, none of them a default, so a default anywhere would show.
 fn settings() -> PretrainConfig {
@@ -41,11 +40,9 @@ const FLAGS: [&str; 14] = [
     "reset",
 ];
 
+/// `saver args`, which must succeed: its stdout and stderr.
 fn saver(args: &[&str]) -> String {
-    let o = Command::new(env!("CARGO_BIN_EXE_saver"))
-        .args(args)
-        .output()
-        .expect("the saver binary runs");
+    let o = crate::saver(args);
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&o.stdout),

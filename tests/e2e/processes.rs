@@ -1,7 +1,7 @@
 //! The `saver` binary as separate OS processes: pcpn-trainer, learner and 4 actors on
 //! 127.0.0.1 (ports chosen by the OS), weights fetched with `saver weights`.
 
-use crate::{assert_tensors_in, temp_dir};
+use crate::{assert_tensors_in, saver, temp_dir};
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
@@ -77,13 +77,6 @@ fn scrape(addr: &str) -> std::collections::HashMap<String, f64> {
             (name.to_string(), value.parse::<f64>().unwrap())
         })
         .collect()
-}
-
-pub fn saver(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_saver"))
-        .args(args)
-        .output()
-        .unwrap()
 }
 
 #[test]

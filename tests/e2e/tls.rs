@@ -1,7 +1,8 @@
 //! TLS end to end: a CA and a server certificate made inside the test, a learner
 //! process serving TLS with a token, and clients that trust the CA (or do not).
 
-use crate::processes::{saver, serve};
+use crate::processes::serve;
+use crate::saver;
 use crate::temp_dir;
 use rcgen::{BasicConstraints, CertificateParams, IsCa, Issuer, KeyPair};
 use std::path::Path;
