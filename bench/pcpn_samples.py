@@ -16,9 +16,7 @@ pretraining (the samples of every env of an actor, as `saver-actor act
 """
 import argparse
 import csv
-import importlib
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -31,35 +29,21 @@ from saver_actor._proto import saver_pb2 as pb
 from saver_actor._proto import saver_pb2_grpc as pb_grpc
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "tests", "python"))
 
 
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def pretrain(saver, factory, count, batches, seed, store_dir):
+def pretrain(t, factory, count, batches, seed, store_dir):
     """One pretraining of `factory`'s PCPN from `count` walk transitions in `batches`
-    batches: returns a row."""
-    mod, _, fn = factory.partition(":")
-    _, decl = getattr(importlib.import_module(mod), fn)()
-    port = free_port()
-    url = f"127.0.0.1:{port}"
-    log = open(os.path.join(store_dir, f"store-{decl.name}-{count}-{seed}.log"), "w")
-    store = subprocess.Popen([saver, "pcpn-trainer", "--store", store_dir, "--listen", url], stdout=log,
-                             stderr=subprocess.STDOUT)
+    batches (`t`: tests/python/test_saver_actor, for its Server): returns a row."""
+    _, decl = t.custom_env(factory)
+    store = t.Server(f"store-{decl.name}-{count}-{batches}-{seed}", ["pcpn-trainer", "--store", store_dir])
+    url = f"127.0.0.1:{store.port}"
     provider = None
     try:
-        for _ in range(100):
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
-                break
-            except OSError:
-                time.sleep(0.2)
+        store.wait_ready()
         provider = subprocess.Popen([sys.executable, "-m", "saver_actor", "samples", "--factory", factory, "--pcpn",
-                                     f"http://{url}", "--envs", "16", "--seed", str(seed)],
-                                    stdout=log, stderr=subprocess.STDOUT)
+                                     store.url, "--envs", "16", "--seed", str(seed)],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         settings = pb.PretrainSettings(optimizer="rmsprop", lr=0.001, batches=batches, batch_size=128, quantiles=32,
                                        seed=seed, samples="walk", walk_samples=count)
         samples_done = [None]
@@ -97,10 +81,10 @@ def pretrain(saver, factory, count, batches, seed, store_dir):
                 "samples_s": round(samples_done[0] or wall, 1), "wall_s": round(wall, 1),
                 "sha": reply.info.weights_sha256[:12]}
     finally:
-        for p in (provider, store):
-            if p is not None and p.poll() is None:
-                p.terminate()
-                p.wait(60)
+        if provider is not None and provider.poll() is None:
+            provider.terminate()
+            provider.wait(60)
+        store.stop()
 
 
 def main():
@@ -112,6 +96,9 @@ def main():
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--out", default=os.path.join(ROOT, "results", "pcpn-samples", "pcpn_samples.csv"))
     args = ap.parse_args()
+    sys.argv = ["pcpn_samples", args.saver]
+    import test_saver_actor as t  # its SAVER is argv[1]
+
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     rows = []
     for factory in args.factories.split(","):
@@ -119,7 +106,7 @@ def main():
             for cell in args.grid.split(","):
                 count, batches = (int(x) for x in cell.split(":"))
                 with tempfile.TemporaryDirectory(prefix="pcpn-samples-") as store_dir:
-                    row = pretrain(os.path.abspath(args.saver), factory, count, batches, seed, store_dir)
+                    row = pretrain(t, factory, count, batches, seed, store_dir)
                 rows.append(row)
                 print(", ".join(f"{k} {v}" for k, v in row.items()), flush=True)
                 with open(args.out, "w", newline="") as f:

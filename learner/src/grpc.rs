@@ -261,10 +261,7 @@ impl LearnerService {
     /// The tonic server for this service: message size limits set, token checked.
     pub fn into_server(self) -> InterceptedService<LearnerServer<Self>, CheckToken> {
         let check = self.access.check.clone();
-        let server = LearnerServer::new(self)
-            .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
-        InterceptedService::new(server, check)
+        learner_server(self, check)
     }
 
     fn weights_reply(w: &EncodedWeights) -> pb::Weights {
@@ -502,6 +499,18 @@ impl Learner for LearnerService {
             ..Default::default()
         }))
     }
+}
+
+/// The tonic server of a Learner implementation (the training one, or the one that
+/// answers while the learner waits): message size limits set, `check`'s token checked.
+pub fn learner_server<S: Learner>(
+    service: S,
+    check: CheckToken,
+) -> InterceptedService<LearnerServer<S>, CheckToken> {
+    let server = LearnerServer::new(service)
+        .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
+    InterceptedService::new(server, check)
 }
 
 /// Serves the Learner service (and grpc.health.v1) on `listener` until `shutdown`.

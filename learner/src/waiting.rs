@@ -11,7 +11,6 @@ use saver_proto::{Access, WAITING_KEY};
 use tokio::sync::watch;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::metadata::MetadataMap;
-use tonic::service::interceptor::InterceptedService;
 use tonic::{Request, Response, Status, Streaming};
 
 /// What the learner waits for.
@@ -117,15 +116,10 @@ pub async fn serve_waiting(
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<LearnerServer<WaitingLearner>>().await;
     let incoming = service.access.incoming(listener);
-    let check = service.access.check.clone();
-    let server = LearnerServer::new(service.clone())
-        .max_decoding_message_size(saver_proto::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(saver_proto::MAX_MESSAGE_BYTES);
-    service
-        .access
-        .server()?
+    let (mut router, check) = (service.access.server()?, service.access.check.clone());
+    router
         .add_service(health_service)
-        .add_service(InterceptedService::new(server, check))
+        .add_service(crate::grpc::learner_server(service, check))
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await
 }

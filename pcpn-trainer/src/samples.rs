@@ -78,7 +78,7 @@ impl SampleProgress {
         })
     }
 
-    /// "12,288 of 67,584 samples (18 %) from 2 providers, 3,100/s, about 18 s left".
+    /// "12288 of 67584 samples (18 %) from 2 providers, 3100/s, about 18 s left".
     pub fn line(&self) -> String {
         let rate = self.received as f64 / self.seconds.max(1e-9);
         let eta = self
@@ -356,32 +356,8 @@ impl Streamed {
         }
     }
 
-    /// The first `n` samples in the order they arrived, apart from the rest (a
-    /// held-out set).
-    pub fn held_out(&mut self, n: usize) -> Result<Replay> {
-        let mut s = Samples {
-            x: Vec::new(),
-            delta: Vec::new(),
-            n: 0,
-        };
-        while s.n < n {
-            let (x, d) = self.next_row()?.ok_or_else(|| exhausted(n))?;
-            s.x.extend(x);
-            s.delta.extend(d);
-            s.n += 1;
-        }
-        Ok(Replay {
-            layout: self.spec.layout(),
-            samples: s,
-            at: 0,
-        })
-    }
-}
-
-impl Streamed {
-    /// The next `n` arrived samples as a [`Pool`] drawn from at random with
-    /// replacement (seeded like this source); the providers are asked for no more.
-    pub fn into_pool(mut self, n: usize) -> Result<Pool> {
+    /// The next `n` samples in the order they arrived.
+    fn rows(&mut self, n: usize) -> Result<Samples> {
         let mut s = Samples {
             x: Vec::new(),
             delta: Vec::new(),
@@ -393,11 +369,26 @@ impl Streamed {
             s.delta.extend(d);
             s.n += 1;
         }
-        let rng = self.rng.clone();
+        Ok(s)
+    }
+
+    /// The first `n` samples in the order they arrived, apart from the rest (a
+    /// held-out set).
+    pub fn held_out(&mut self, n: usize) -> Result<Replay> {
+        Ok(Replay {
+            layout: self.spec.layout(),
+            samples: self.rows(n)?,
+            at: 0,
+        })
+    }
+
+    /// The next `n` arrived samples as a [`Pool`] drawn from at random with
+    /// replacement (seeded like this source); the providers are asked for no more.
+    pub fn into_pool(mut self, n: usize) -> Result<Pool> {
         Ok(Pool {
             layout: self.spec.layout(),
-            samples: s,
-            rng,
+            samples: self.rows(n)?,
+            rng: self.rng.clone(),
         })
     }
 }

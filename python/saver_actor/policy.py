@@ -78,11 +78,7 @@ class Gaussian:
         actions = np.empty((e, c + self.ch), dtype=np.float32)
         actions[:, :c] = mu[:, :c] + self.sigma * rng.standard_normal((e, c), dtype=np.float32)
         if self.ch:
-            logits = mu[:, c:]
-            p = np.exp(logits - logits.max(axis=1, keepdims=True))
-            p /= p.sum(axis=1, keepdims=True)
-            u = rng.random((e, 1))
-            pick = np.minimum((np.cumsum(p, axis=1) < u).sum(axis=1), self.ch - 1)
+            pick = sample_choices(mu[:, c:], rng)
             actions[:, c:] = 0.0
             actions[np.arange(e), c + pick] = 1.0
         payload = np.concatenate([mu, np.broadcast_to(self.log_std, (e, c))], axis=1)
@@ -95,6 +91,15 @@ class Gaussian:
             mu[:, self.c:] = 0.0
             mu[np.arange(mu.shape[0]), self.c + pick] = 1.0
         return mu
+
+
+def sample_choices(logits: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One draw from softmax(logits) per row [E, K]: the indices [E] (the first whose
+    cumulative probability passes a uniform u; one rng.random((E, 1)) call)."""
+    p = np.exp(logits - logits.max(axis=1, keepdims=True))
+    p /= p.sum(axis=1, keepdims=True)
+    u = rng.random((logits.shape[0], 1))
+    return np.minimum((np.cumsum(p, axis=1) < u).sum(axis=1), logits.shape[1] - 1)
 
 
 def cosine_embedding(tau: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ from ._proto import saver_pb2_grpc as pb_grpc
 from .actor import Connection
 from .env import EnvDecl
 from .envset import LocalEnvs
+from .policy import sample_choices
 
 BATCH = 1024  # samples per SampleBatch message
 
@@ -60,12 +61,7 @@ class Walker:
         action = np.zeros((e, c + ch), dtype=np.float32)
         action[:, :c] = mu[:, :c] + sigma * self.rng.standard_normal((e, c))
         if ch:
-            logits = mu[:, c:].astype(np.float64)
-            p = np.exp(logits - logits.max(axis=1, keepdims=True))
-            p /= p.sum(axis=1, keepdims=True)
-            # One categorical draw per row: the first index whose cumulative p passes u.
-            k = (p.cumsum(axis=1) < self.rng.random((e, 1))).sum(axis=1).clip(max=ch - 1)
-            action[np.arange(e), c + k] = 1.0
+            action[np.arange(e), c + sample_choices(mu[:, c:].astype(np.float64), self.rng)] = 1.0
         nxt, rewards, terminated, truncated, infos = self.envs.step(action)
         d.check_obs(nxt, "a sample step")
         obs = self.obs.astype(np.float32)

@@ -194,6 +194,15 @@ pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
     Ok((settings, Arc::new(PolicyWeights { version, tensors })))
 }
 
+/// The command that plays a custom env's policy file (only the env's own Python code
+/// steps it).
+pub fn enjoy_command(policy: &Path) -> String {
+    format!(
+        "saver-actor enjoy --factory MODULE:FUNCTION --weights {}",
+        policy.display()
+    )
+}
+
 /// Runs `saver eval`.
 pub fn run(args: EvalArgs) -> Result<()> {
     let (settings, weights) = load(&args.source)?;
@@ -205,12 +214,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
         };
         bail!(
             "{} is a custom env, which only its own Python code can step: play these weights \
-             there with `saver-actor enjoy --factory MODULE:FUNCTION --weights {}` (each \
-             deterministic episode's return and success; --video to record it), or evaluate \
-             a running learner's versions with `saver-actor evaluate` (docs/GUIDE.md \
-             \"Bring your own environment\")",
+             there with `{}` (each deterministic episode's return and success; --video to \
+             record it), or evaluate a running learner's versions with `saver-actor \
+             evaluate` (docs/GUIDE.md \"Bring your own environment\")",
             settings.env,
-            file.display()
+            enjoy_command(&file)
         );
     }
     let version = weights.version;

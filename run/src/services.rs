@@ -76,6 +76,22 @@ async fn terminated() {
     let _ = tokio::signal::ctrl_c().await;
 }
 
+/// A flag that turns true on Ctrl-C or SIGTERM, for every part of a service that
+/// stops on it (wait with [`quit`]).
+fn quit_on_signal(rt: &tokio::runtime::Runtime) -> tokio::sync::watch::Receiver<bool> {
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    rt.spawn(async move {
+        terminated().await;
+        let _ = tx.send(true);
+    });
+    rx
+}
+
+/// Resolves once `rx` (from [`quit_on_signal`]) turned true.
+async fn quit(mut rx: tokio::sync::watch::Receiver<bool>) {
+    let _ = rx.wait_for(|q| *q).await;
+}
+
 /// `saver learner` flags.
 #[derive(Args, Clone, Debug)]
 pub struct LearnerArgs {
@@ -181,12 +197,8 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     let rt = runtime()?;
     metrics_on(&rt, args.metrics, &args.access)?;
     let listener = rt.block_on(bind(args.listen))?;
-    let (quit_tx, quit_rx) = tokio::sync::watch::channel(false);
-    rt.spawn(async move {
-        terminated().await;
-        let _ = quit_tx.send(true);
-    });
-    let pcpn = if config.algo == Algo::Saver {
+    let quit_rx = quit_on_signal(&rt);
+    let (pcpn, listener) = if config.algo == Algo::Saver {
         // The port answers at once: Status says what the learner waits for, actors
         // are told to keep waiting. The trained service takes the port over after.
         let std = listener.into_std()?;
@@ -207,7 +219,6 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     } else {
         (None, listener)
     };
-    let (pcpn, listener) = pcpn;
     let opts = LearnerOptions {
         out,
         round_timeout: Duration::from_secs_f64(args.round_timeout),
@@ -217,11 +228,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
         access: check,
     };
     let out = opts.out.clone();
-    let mut quit = quit_rx;
-    let shutdown = async move {
-        let _ = quit.wait_for(|q| *q).await;
-    };
-    let outcome = serve_learner(&rt, &config, pcpn, opts, listener, shutdown)?;
+    let outcome = serve_learner(&rt, &config, pcpn, opts, listener, quit(quit_rx))?;
     report(&config, &outcome, &out);
     Ok(())
 }
@@ -235,14 +242,14 @@ fn while_waiting<T>(
     first: Waiting,
     access: &saver_proto::Access,
     listener: std::net::TcpListener,
-    mut quit: tokio::sync::watch::Receiver<bool>,
+    quit_rx: tokio::sync::watch::Receiver<bool>,
     obtain: impl FnOnce(&tokio::sync::watch::Sender<Waiting>) -> Result<T>,
 ) -> Result<T> {
     let (about, about_rx) = tokio::sync::watch::channel(first);
     let waiting = Arc::new(AtomicBool::new(true));
     let flag = waiting.clone();
     rt.spawn(async move {
-        let _ = quit.wait_for(|q| *q).await;
+        quit(quit_rx).await;
         if flag.load(Ordering::SeqCst) {
             eprintln!("learner: stopped while waiting for its PCPN (nothing trained or written)");
             std::process::exit(130);
@@ -299,6 +306,14 @@ fn obtain_for_learner(
     let bytes = rt
         .block_on(async {
             reach_store(url, pcpn_access, about).await?;
+            // One channel for every Progress call (connected on first use, again
+            // after a failure).
+            let mut progress = pcpn_access.endpoint(url).ok().map(|e| {
+                saver_proto::pb::pcpn_store_client::PcpnStoreClient::with_interceptor(
+                    e.connect_lazy(),
+                    pcpn_access.token.clone(),
+                )
+            });
             let work = fetch(url, &config.env, &config.pretrain, pcpn_access);
             tokio::pin!(work);
             let mut tick = tokio::time::interval(saver_pcpn_trainer::samples::SAY_EVERY);
@@ -307,7 +322,7 @@ fn obtain_for_learner(
                 tokio::select! {
                     out = &mut work => return out,
                     _ = tick.tick() => {
-                        let p = store_progress(url, pcpn_access).await;
+                        let p = store_progress(progress.as_mut()).await;
                         let what = match &p {
                             Ok(Some(p)) => format!("the PCPN from {url}: {}", p.line),
                             Ok(None) => format!("the PCPN from {url} (no pretraining in progress there: \
@@ -385,19 +400,19 @@ async fn reach_store(
     }
 }
 
-/// How far the store at `url` is with its pretraining (None: none in progress).
+/// The store's client for Progress calls (its token attached).
+type StoreClient = saver_proto::pb::pcpn_store_client::PcpnStoreClient<
+    tonic::service::interceptor::InterceptedService<
+        tonic::transport::Channel,
+        saver_proto::AddToken,
+    >,
+>;
+
+/// How far the store is with its pretraining (None: none in progress).
 async fn store_progress(
-    url: &str,
-    access: &saver_proto::ClientAccess,
+    client: Option<&mut StoreClient>,
 ) -> Result<Option<saver_proto::pb::PretrainProgress>, tonic::Status> {
-    use saver_proto::pb::pcpn_store_client::PcpnStoreClient;
-    let channel = access
-        .endpoint(url)
-        .map_err(|e| tonic::Status::unavailable(e.to_string()))?
-        .connect()
-        .await
-        .map_err(|e| tonic::Status::unavailable(e.to_string()))?;
-    let mut client = PcpnStoreClient::with_interceptor(channel, access.token.clone());
+    let client = client.ok_or_else(|| tonic::Status::unavailable("no endpoint"))?;
     let r = client.progress(saver_proto::pb::ProgressRequest {}).await?;
     Ok(r.into_inner().pretraining.into_iter().next())
 }
@@ -592,14 +607,7 @@ pub fn pcpn_trainer(args: PcpnTrainerArgs) -> Result<()> {
     );
     // A signal stops the server; a pretraining still training then (nothing of it is
     // stored) is given up with the runtime after a short grace.
-    let (quit_tx, quit_rx) = tokio::sync::watch::channel(false);
-    rt.spawn(async move {
-        terminated().await;
-        let _ = quit_tx.send(true);
-    });
-    let quit = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
-        let _ = rx.wait_for(|q| *q).await;
-    };
+    let quit_rx = quit_on_signal(&rt);
     let served = rt.block_on(async {
         let server = saver_pcpn_trainer::service::serve(
             PcpnService::new(&args.store)

@@ -340,12 +340,10 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
             "  policy      {} (any client: saver eval, saver_actor.Policy.load)",
             policy.display()
         ),
-        // Only the env's own Python code steps a custom env.
         None => crate::out!(
-            "  policy      {} (play it: saver-actor enjoy --factory MODULE:FUNCTION --weights {}; \
-             saver_actor.Policy.load)",
+            "  policy      {} (play it: {}; saver_actor.Policy.load)",
             policy.display(),
-            policy.display()
+            crate::eval::enjoy_command(&policy)
         ),
     }
     let best = out.join(saver_learner::best::BEST_FILE);

@@ -36,6 +36,7 @@ from safetensors.numpy import load
 from saver_actor import Actor, Connection, EnvDecl, EnvError, Policy, Refused, policy_for
 from saver_actor._proto import saver_pb2 as pb
 from saver_actor._proto import saver_pb2_grpc as pb_grpc
+from saver_actor.actor import WAITING_KEY
 from saver_actor.examples import reacher
 
 SAVER = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else "target/release/saver")
@@ -111,7 +112,7 @@ def registered_weights(url, wait=3600):
                 reply = stub.Register(pb.RegisterRequest(name="parity", session=1, n_envs=1), timeout=30)
                 break
             except grpc.RpcError as e:
-                waits = any(k == "x-saver-waiting" for k, _ in (e.trailing_metadata() or ()))
+                waits = any(k == WAITING_KEY for k, _ in (e.trailing_metadata() or ()))
                 if not waits or time.time() > deadline:
                     raise
                 time.sleep(2)
@@ -790,10 +791,16 @@ def test_an_inertial_point_mass_trains_with_saver():
     assert after["success"] >= before["success"] + 0.7, (before, after)
 
 
-if __name__ == "__main__":
-    for name, fn in list(globals().items()):
+def run_tests(names: dict):
+    """Runs the test_ functions of a module's globals (those whose name holds argv[2],
+    if given), saying each one's time."""
+    for name, fn in list(names.items()):
         if name.startswith("test_") and (len(sys.argv) < 3 or sys.argv[2] in name):
-            t = time.time()
+            start = time.time()
             print(f"{name} ...", flush=True)
             fn()
-            print(f"{name} ok ({time.time() - t:.0f} s)", flush=True)
+            print(f"{name} ok ({time.time() - start:.0f} s)", flush=True)
+
+
+if __name__ == "__main__":
+    run_tests(globals())

@@ -246,9 +246,4 @@ def test_reach3_checks_and_trains_with_saver_and_a2c():
 
 
 if __name__ == "__main__":
-    for name, fn in list(globals().items()):
-        if name.startswith("test_") and (len(sys.argv) < 3 or sys.argv[2] in name):
-            start = time.time()
-            print(f"{name} ...", flush=True)
-            fn()
-            print(f"{name} ok ({time.time() - start:.0f} s)", flush=True)
+    t.run_tests(globals())
