@@ -41,7 +41,8 @@ os.makedirs(out, exist_ok=True)
 
 
 def rounded(r):
-    return {"return": round(r["return"], 3), "success": r["success"], "distance": round(r["distance"], 4)}
+    return {"return": round(r["return"], 3), "success": r["success"], "distance": round(r["distance"], 4),
+            "env_return": round(r["env_return"], 3)}
 
 
 store = None

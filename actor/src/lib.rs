@@ -136,6 +136,7 @@ impl Actor {
             actions: Vec::with_capacity(e * n * l.action_dim()),
             state_delta: Vec::with_capacity(e * n * l.aligned_dim),
             vector_reward: Vec::with_capacity(e * n * l.aligned_dim),
+            env_reward: vec![],
             done: Vec::with_capacity(e * n),
             timeouts: Vec::new(),
             timeout_obs: Vec::new(),

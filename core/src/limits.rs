@@ -98,6 +98,7 @@ mod tests {
             actions: vec![0.9 + 3.0 * (-1.0f32).exp(), 2.0],
             state_delta: vec![0.0, 0.1],
             vector_reward: vec![0.0, 0.1],
+            env_reward: vec![],
             done: vec![false],
             timeouts: vec![],
             timeout_obs: vec![],
@@ -162,6 +163,7 @@ mod tests {
             actions: vec![52.0, 0.0, 0.0, 1.0],
             state_delta: vec![0.0, 0.0, 0.05],
             vector_reward: vec![0.0, 0.0, 0.05],
+            env_reward: vec![],
             ..one_step()
         };
         limits.check(&r).unwrap();

@@ -7,6 +7,10 @@ use crate::env::EnvLayout;
 use crate::{CoreError, Result};
 use std::sync::Arc;
 
+/// The largest env reward a rollout may carry for one step (its square and its sums
+/// over an episode stay far inside f32).
+pub const MAX_ENV_REWARD: f32 = 1e9;
+
 /// An episode that finished inside a rollout.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Episode {
@@ -51,6 +55,9 @@ pub struct Rollout {
     pub state_delta: Vec<f32>,
     /// [E, n, d]: vector rewards.
     pub vector_reward: Vec<f32>,
+    /// [E, n]: the env's own scalar reward of each step, or empty when the env has
+    /// none (the presets); SAVER's env-return term learns from it.
+    pub env_reward: Vec<f32>,
     /// [E, n]: the episode ended at this step (success or timeout).
     pub done: Vec<bool>,
     /// Steps (indices into [E, n], ascending) whose episode ended at the step limit;
@@ -165,6 +172,27 @@ impl Rollout {
                 )));
             }
         }
+        if !self.env_reward.is_empty() {
+            if self.env_reward.len() != e * n {
+                return Err(CoreError::Data(format!(
+                    "rollout env_reward has {} values, expected {} for {e} envs x {n} steps \
+                     (or none)",
+                    self.env_reward.len(),
+                    e * n
+                )));
+            }
+            if let Some(i) = self
+                .env_reward
+                .iter()
+                .position(|x| !x.is_finite() || x.abs() > MAX_ENV_REWARD)
+            {
+                return Err(CoreError::Data(format!(
+                    "rollout env_reward[{i}] is {}: an env's reward must be finite and \
+                     within +-{MAX_ENV_REWARD:e}",
+                    self.env_reward[i]
+                )));
+            }
+        }
         if self.done.len() != e * n {
             return Err(CoreError::Data(format!(
                 "rollout done has {} entries, expected {}",
@@ -235,6 +263,9 @@ pub struct Batch {
     pub state_delta: Vec<f32>,
     /// [T·n, d].
     pub vector_reward: Vec<f32>,
+    /// [T·n]: the env's own scalar reward, or empty unless every rollout of the batch
+    /// carries one.
+    pub env_reward: Vec<f32>,
     /// [T·n].
     pub done: Vec<bool>,
     /// Transitions (indices into T·n, ascending) whose episode hit the step limit.
@@ -263,6 +294,7 @@ impl Batch {
             payload: vec![],
             state_delta: vec![],
             vector_reward: vec![],
+            env_reward: vec![],
             done: vec![],
             timeouts: vec![],
             timeout_obs: vec![],
@@ -284,6 +316,7 @@ impl Batch {
             b.payload.extend_from_slice(&r.payload);
             b.state_delta.extend_from_slice(&r.state_delta);
             b.vector_reward.extend_from_slice(&r.vector_reward);
+            b.env_reward.extend_from_slice(&r.env_reward);
             b.done.extend_from_slice(&r.done);
             let offset = b.n_traj * n;
             b.timeouts
@@ -292,6 +325,9 @@ impl Batch {
             b.n_traj += r.n_envs;
         }
         b.steps = (b.n_traj * n) as u64;
+        if rollouts.iter().any(|r| r.env_reward.is_empty()) {
+            b.env_reward.clear();
+        }
         Ok(b)
     }
 

@@ -220,6 +220,7 @@ impl From<&Rollout> for pb::Rollout {
             actions: r.actions.clone(),
             state_delta: r.state_delta.clone(),
             vector_reward: r.vector_reward.clone(),
+            env_reward: r.env_reward.clone(),
             done: r.done.clone(),
             timeouts: r.timeouts.clone(),
             timeout_obs: r.timeout_obs.clone(),
@@ -245,6 +246,7 @@ impl TryFrom<pb::Rollout> for Rollout {
             + r.actions.len()
             + r.state_delta.len()
             + r.vector_reward.len()
+            + r.env_reward.len()
             + r.done.len()
             + r.timeouts.len()
             + r.timeout_obs.len();
@@ -273,6 +275,7 @@ impl TryFrom<pb::Rollout> for Rollout {
             actions: r.actions,
             state_delta: r.state_delta,
             vector_reward: r.vector_reward,
+            env_reward: r.env_reward,
             done: r.done,
             timeouts: r.timeouts,
             timeout_obs: r.timeout_obs,

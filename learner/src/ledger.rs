@@ -325,6 +325,7 @@ mod tests {
             actions: vec![0.0; n],
             state_delta: vec![0.0; n],
             vector_reward: vec![0.25; n],
+            env_reward: vec![],
             done,
             timeouts: vec![],
             timeout_obs: vec![],

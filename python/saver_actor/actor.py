@@ -20,7 +20,7 @@ from threadpoolctl import threadpool_limits
 
 from ._proto import saver_pb2 as pb
 from ._proto import saver_pb2_grpc as pb_grpc
-from .env import EnvDecl, EnvError
+from .env import EnvDecl, EnvError, check_env_rewards
 from .envset import LocalEnvs, ProcessEnvs
 from .policy import policy_for
 
@@ -324,6 +324,7 @@ class Actor:
         pay_all = np.empty((e, n, policy.payload_width), dtype=np.float32)
         delta_all = np.empty((e, n, d.dim), dtype=np.float32)
         rew_all = np.empty((e, n, d.dim), dtype=np.float32)
+        env_rew_all = np.empty((e, n), dtype=np.float32)
         done_all = np.zeros((e, n), dtype=bool)
         episodes = [[] for _ in range(e)]
         timeouts = [[] for _ in range(e)]
@@ -338,6 +339,7 @@ class Actor:
             # Bounds are checked for the whole rollout below (before anything is sent).
             delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False, complete=complete)
             delta_all[:, t], rew_all[:, t] = delta, r
+            env_rew_all[:, t] = rewards
             running += 1
             returns += r.astype(np.float32).sum(axis=1)
             timeout = ~success & (running >= limit)
@@ -368,11 +370,13 @@ class Actor:
         o_all[:, n] = obs
         d.check_obs(o_all, "a step")
         d.check_steps(delta_all, rew_all, "a step")
+        check_env_rewards(d.name, env_rew_all)
         self.summary.steps += e * n
         self.summary.env_seconds += env_time
         msg = pb.Rollout(
             n_envs=e, n_steps=n, obs=o_all.ravel().tolist(), actions=act_all.ravel().tolist(),
             state_delta=delta_all.ravel().tolist(), vector_reward=rew_all.ravel().tolist(),
+            env_reward=env_rew_all.ravel().tolist(),
             done=done_all.ravel().tolist(), payload=pay_all.ravel().tolist(),
             episodes=[ep for eps in episodes for ep in eps],
             timeouts=[k for ts in timeouts for k, _ in ts],

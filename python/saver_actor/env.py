@@ -26,6 +26,19 @@ class EnvError(ValueError):
     """An environment does not do what its declaration says."""
 
 
+# The largest env reward per step a learner takes (core/src/rollout.rs MAX_ENV_REWARD).
+MAX_ENV_REWARD = 1e9
+
+
+def check_env_rewards(name: str, rewards: np.ndarray) -> None:
+    """Refuses env rewards (any shape) that are not finite or beyond MAX_ENV_REWARD:
+    the learner would refuse the rollout."""
+    bad = ~(np.abs(rewards) <= MAX_ENV_REWARD)
+    if bad.any():
+        v = float(rewards.reshape(-1)[int(np.argmax(bad.reshape(-1)))])
+        raise EnvError(f"{name}: the env's reward {v!r} is not finite or beyond +-{MAX_ENV_REWARD:g}")
+
+
 def _as_slice(s, what: str) -> slice:
     if isinstance(s, slice):
         return s

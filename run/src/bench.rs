@@ -163,6 +163,7 @@ fn synthetic_batch(l: &EnvLayout, n: usize, seed: u64) -> Batch {
             .collect(),
         state_delta: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
         vector_reward: u(b * l.aligned_dim).iter().map(|x| 0.1 * x).collect(),
+        env_reward: vec![],
         done: (0..b).map(|i| i % 97 == 0).collect(),
         timeouts: vec![],
         timeout_obs: vec![],

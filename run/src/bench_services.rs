@@ -158,6 +158,7 @@ pub fn ingress(seconds: f64) -> Result<f64> {
                     // Standing still: each step's p + Δp is the next p, as the learner checks.
                     state_delta: vec![0.0; n * layout.aligned_dim],
                     vector_reward: vec![0.0; n * layout.aligned_dim],
+                    env_reward: vec![],
                     done: vec![false; n],
                     timeouts: vec![],
                     timeout_obs: vec![],

@@ -40,10 +40,22 @@ fn extreme_finite_values_are_refused_and_a_poisoned_batch_changes_nothing() {
         let (tx, mut acks) = open_stream(&mut client, &base, false).await;
         let obs_dim = config.env.layout().obs_dim;
         type Break = fn(&mut pb::Rollout, usize);
-        let cases: [(Break, &str); 4] = [
+        let cases: [(Break, &str); 6] = [
             (|r, _| r.obs[0] = 1e10, "obs[0]"),
             (|r, _| r.actions[1] = 1e10, "actions[1]"),
             (|r, _| r.vector_reward[0] = 1e18, "vector_reward[0]"),
+            // The env's own reward: optional, but one per step and within +-1e9.
+            (
+                |r, _| r.env_reward = vec![0.0; 3],
+                "env_reward has 3 values",
+            ),
+            (
+                |r, _| {
+                    r.env_reward = vec![-1.0; r.done.len()];
+                    r.env_reward[2] = 2e9;
+                },
+                "env_reward[2]",
+            ),
             (
                 |r, obs_dim| {
                     // A timeout at step 3 whose final observation is near f32::MAX.

@@ -5,6 +5,7 @@
 //! L_mon = λ_mon · 2K · mean_{B·K·K·d} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
+mod env_return;
 mod epochs;
 mod stats;
 mod step;
@@ -24,6 +25,7 @@ use crate::rng::{rng_for, streams, uniform01, SaverRng};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
+use env_return::{EnvReturn, EnvTargets};
 use saver_proto::NamedTensor;
 use std::borrow::Cow;
 #[cfg(test)]
@@ -45,6 +47,9 @@ const STATS_TUNED: &[&str] = &[
 
 /// The update's statistics with the PCPN frozen.
 const STATS: &[&str] = STATS_TUNED.split_at(STATS_TUNED.len() - 1).0;
+
+/// The env-return term's statistics, when the run has it (0 on a batch it skips).
+const ENV_STATS: &[&str] = &["env_pg_loss", "env_critic_loss"];
 
 /// The SAVER learner state.
 pub struct Saver {
@@ -81,6 +86,8 @@ pub struct Saver {
     tuner: Option<PcpnTuner>,
     /// Off-policy correction, when the run asks for it.
     vtrace: Option<super::Vtrace>,
+    /// The env-return term (`saver.env_reward` > 0; env_return.rs).
+    env: Option<EnvReturn>,
 }
 
 /// How the agent's gradient through the PCPN is computed.
@@ -142,8 +149,12 @@ impl Saver {
         let mut rng = rng_for(config.seed, streams::INIT);
         let agent = Agent::new(&layout, config.head, &config.hidden, false, &mut rng, dev)?;
         let critic = Critic::new(&layout, &config.hidden, &mut rng, dev)?;
+        let env = EnvReturn::of(config, &layout, &mut rng, dev)?;
         let mut vars = agent.params().vars.clone();
         vars.extend(critic.params().vars.clone());
+        if let Some(e) = &env {
+            vars.extend(e.params().vars.clone());
+        }
         let batch = config.batch_transitions() as usize;
         let per_update = (config.saver.epochs * config.saver.minibatches(batch)) as u64;
         let opt = super::run_optimizer(vars, config, per_update)?;
@@ -170,12 +181,21 @@ impl Saver {
                 lambda: config.saver.gae_lambda as f32,
                 ..v
             }),
+            env,
         })
     }
 
     /// The frozen PCPN.
     pub fn pcpn(&self) -> &Pcpn {
         self.pcpn.pcpn()
+    }
+
+    /// The networks a checkpoint holds: agent, vector critic and, with the env-return
+    /// term, its critic.
+    fn nets(&self) -> Vec<&crate::nets::ParamSet> {
+        let mut nets = vec![self.agent.params(), self.critic.params()];
+        nets.extend(self.env.as_ref().map(EnvReturn::params));
+        nets
     }
 }
 
@@ -224,6 +244,8 @@ struct Start<'a> {
     log_std_host: Vec<f32>,
     /// V-trace's statistics, when it runs.
     vtrace_stats: Vec<(&'static str, f32)>,
+    /// The env-return term's targets, when it learns from this batch.
+    env: Option<EnvTargets>,
 }
 
 impl Saver {
@@ -250,6 +272,13 @@ impl Saver {
         let (obs_all, n_ends) = update_rows(batch, self.bootstrap_timeout, o, &self.dev)?;
         let all = self.forward(obs_all)?;
         let v_all = &all.value; // [B+T, d]
+        let env = match &self.env {
+            Some(e) if EnvReturn::applies(batch) => {
+                let lambda = self.cfg.gae_lambda as f32;
+                Some(e.targets(batch, &e.value(&all.x)?, n_ends, self.gamma, lambda)?)
+            }
+            _ => None,
+        };
         let fwd = all.narrow(b)?;
         let value_host: Vec<f32> = fwd.value.flatten_all()?.to_vec1()?;
         let (mu_host, log_std_host) = (host(&fwd.mu)?, host(&fwd.log_std)?);
@@ -288,6 +317,7 @@ impl Saver {
             mu_host,
             log_std_host,
             vtrace_stats,
+            env,
         })
     }
 
@@ -335,6 +365,9 @@ impl Algorithm for Saver {
         if self.vtrace.is_some() {
             names.extend(super::VTRACE_STATS);
         }
+        if self.env.is_some() {
+            names.extend(ENV_STATS);
+        }
         names
     }
 
@@ -344,11 +377,17 @@ impl Algorithm for Saver {
         }
         let s = self.start(batch)?;
         let (b, d) = (batch.len(), self.layout.aligned_dim);
+        let action_dim = self.layout.action_dim();
         let rows = StepRows {
             fwd: &s.fwd,
             returns: Tensor::from_slice(&s.returns_host, (b, d), &self.dev)?,
             target: &s.target,
             adv: &s.adv_host,
+            env: s
+                .env
+                .as_ref()
+                .map(|t| EnvReturn::rows(t, batch, None, action_dim, &self.dev))
+                .transpose()?,
         };
         let step = self.step_loss(&rows)?;
         // The PCPN's step on this batch, computed before anything changes.
@@ -374,10 +413,12 @@ impl Algorithm for Saver {
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {
-        let nets = [self.agent.params(), self.critic.params()];
-        let mut state = super::nets_state(&nets, &self.opt, Some(&self.rng))?;
+        let mut state = super::nets_state(&self.nets(), &self.opt, Some(&self.rng))?;
         if let Some(t) = &self.tuner {
             t.save(&mut state)?;
+        }
+        if let Some(e) = &self.env {
+            state.tensors.push(e.state(&self.dev)?);
         }
         Ok(state)
     }
@@ -387,8 +428,12 @@ impl Algorithm for Saver {
         get: &dyn Fn(&str) -> Option<Tensor>,
         numbers: &std::collections::BTreeMap<String, u128>,
     ) -> Result<()> {
-        let nets = [self.agent.params(), self.critic.params()];
+        let mut nets = vec![self.agent.params(), self.critic.params()];
+        nets.extend(self.env.as_ref().map(EnvReturn::params));
         super::restore_nets(&nets, &mut self.opt, Some(&mut self.rng), get, numbers)?;
+        if let Some(e) = &self.env {
+            e.restore(get)?;
+        }
         if let Some(t) = &mut self.tuner {
             t.restore(get, numbers)?;
             self.pcpn = self.pcpn.refreshed(t.frozen()?)?;

@@ -106,6 +106,11 @@ pub const CUSTOM_SAVER_LOG_STD_MIN: f64 = -0.8;
 /// 1.5` pushes 1.0 and matches SB3 PPO's return where the return is the distance, but
 /// costs Reacher-v5's control, so the bound stays 1.
 pub const CUSTOM_SAVER_MINIBATCH_SIZE: usize = 128;
+/// The weight of SAVER's env-return term on a custom env (docs/ALGORITHM.md §7.2): the
+/// progress reward does not see what else the env's reward counts (Reacher-v5's
+/// control cost), so a scalar critic and a policy gradient on the env's own reward sit
+/// beside the vector term. Presets send no env reward and keep the paper's update.
+pub const CUSTOM_SAVER_ENV_REWARD: f64 = 0.0;
 
 /// SAVER's defaults over the paper's settings.
 pub(crate) fn recommend(c: &mut RunConfig) {
@@ -129,6 +134,7 @@ pub(crate) fn recommend(c: &mut RunConfig) {
         c.complete_at_success = true;
         c.lr_decay = CUSTOM_SAVER_LR_DECAY;
         c.saver.minibatch_size = CUSTOM_SAVER_MINIBATCH_SIZE;
+        c.saver.env_reward = CUSTOM_SAVER_ENV_REWARD;
         c.head.log_std_bounds = c
             .head
             .log_std_bounds

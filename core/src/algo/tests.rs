@@ -43,6 +43,7 @@ pub(super) fn random_batch(
         payload: gaussian_payload(l, b),
         state_delta: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
         vector_reward: uniform(&mut rng, b * l.aligned_dim, -0.1, 0.1),
+        env_reward: vec![],
         done,
         timeouts: vec![],
         timeout_obs: vec![],
@@ -584,5 +585,6 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         minibatch_size: 0,
         gae_lambda: 1.0,
         target_kl: 0.0,
+        env_reward: 0.0,
     }
 }

@@ -94,6 +94,12 @@ pub struct SaverConfig {
     /// above this (cleanrl's and SB3's `target_kl`; docs/ALGORITHM.md §7.1). 0: off.
     #[serde(default)]
     pub target_kl: f64,
+    /// Weight w of the env-return term (docs/ALGORITHM.md §7.2): where the actors send
+    /// the env's own scalar reward and it is not the progress reward, a scalar critic
+    /// learns its return and the agent also takes −w·mean(Â_r·log π), Â_r normalised
+    /// over the batch. 0: off (the paper, and every preset).
+    #[serde(default)]
+    pub env_reward: f64,
 }
 
 fn no_trace_decay() -> f64 {
@@ -294,6 +300,7 @@ impl RunConfig {
                 minibatch_size: 0,
                 gae_lambda: 1.0,
                 target_kl: 0.0,
+                env_reward: 0.0,
             },
             ppo: PpoConfig::default(),
             pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
@@ -403,6 +410,7 @@ impl RunConfig {
             ("saver.mu_raw_penalty", s.mu_raw_penalty),
             ("saver.qrrl_spread", s.qrrl_spread),
             ("saver.pcpn_tune_lr", s.pcpn_tune_lr),
+            ("saver.env_reward", s.env_reward),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("{v} must be finite and >= 0"));

@@ -42,14 +42,27 @@ impl Critic {
         rng: &mut SaverRng,
         dev: &Device,
     ) -> Result<Self> {
+        Self::named("critic", input, outputs, hidden, rng, dev)
+    }
+
+    /// [`Self::with_sizes`] with its variables named `<name>.*` (a second critic
+    /// beside the first).
+    pub fn named(
+        name: &str,
+        input: usize,
+        outputs: usize,
+        hidden: &[usize],
+        rng: &mut SaverRng,
+        dev: &Device,
+    ) -> Result<Self> {
         let mut params = ParamSet::default();
         let mut layers = Vec::new();
         let mut fan_in = input;
         for (i, &h) in hidden.iter().enumerate() {
-            layers.push(params.linear(&format!("critic.l{i}"), fan_in, h, rng, dev)?);
+            layers.push(params.linear(&format!("{name}.l{i}"), fan_in, h, rng, dev)?);
             fan_in = h;
         }
-        layers.push(params.linear("critic.out", fan_in, outputs, rng, dev)?);
+        layers.push(params.linear(&format!("{name}.out"), fan_in, outputs, rng, dev)?);
         Ok(Self { layers, params })
     }
 

@@ -156,6 +156,9 @@ pub struct SaverSettings {
     #[arg(id = "saver_target_kl", value_name = "KL", long = "saver-target-kl", help = help("SAVER: stop --saver-epochs' passes over a batch once a minibatch's approximate KL to the behaviour policy is above this (0: off)", "saver.target_kl"))]
     #[serde(rename = "target_kl")]
     pub saver_target_kl: Option<f64>,
+    #[arg(id = "saver_env_reward", value_name = "W", long = "saver-env-reward", allow_hyphen_values = true, help = help("SAVER: weight of the env-return term, a scalar critic and policy gradient on the env's own reward where the actors send one that is not the progress reward (0: off, the paper)", "saver.env_reward"))]
+    #[serde(rename = "env_reward")]
+    pub saver_env_reward: Option<f64>,
     #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
     pub qrrl_spread: Option<f64>,
     #[arg(long, help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "saver.qrrl_vector"))]

@@ -7,7 +7,7 @@
 //! `saver.target_kl` the passes stop early once a minibatch's policy has moved that far
 //! from the one that acted (approximate KL), as PPO's early stop.
 
-use super::{Losses, Saver, StepRows};
+use super::{EnvReturn, Losses, Saver, StepRows};
 use crate::algo::{Algorithm, UpdateStats};
 use crate::rollout::Batch;
 use crate::Result;
@@ -85,6 +85,11 @@ impl Saver {
                     returns: Tensor::from_vec(rows(&s.returns_host, d), (n, d), &self.dev)?,
                     target: &target,
                     adv: &adv,
+                    env: s
+                        .env
+                        .as_ref()
+                        .map(|t| EnvReturn::rows(t, batch, Some(idx), a, &self.dev))
+                        .transpose()?,
                 };
                 let step = self.step_loss(&step_rows)?;
                 let (l, step_dmu) = self.take_step(step)?;

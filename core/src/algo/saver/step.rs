@@ -1,6 +1,7 @@
 //! One optimiser step of SAVER's update: the critic's loss, the actor loss and monotonic
 //! penalty through the frozen PCPN (fast path or autograd reference), and the saturation wall.
 
+use super::env_return::EnvRows;
 use super::{tau_tensors, Forward, GradPath, Saver};
 use crate::algo::saver_grad::{policy_grads, saver_actor_losses};
 use crate::algo::{check_finite, matrix};
@@ -30,6 +31,8 @@ pub(super) struct StepRows<'a> {
     pub(super) returns: Tensor,
     pub(super) target: &'a [f32],
     pub(super) adv: &'a [f32],
+    /// The env-return term's rows, when it learns from this batch.
+    pub(super) env: Option<EnvRows>,
 }
 
 /// The agent's loss on some rows: L_a and L_mon, the tensor whose gradient trains the
@@ -55,6 +58,9 @@ pub(super) struct Losses {
     pub(super) mon: f32,
     pub(super) critic: f32,
     pub(super) grad_norm: f32,
+    /// The env-return term's L_r and L_V_r (0 where it does not run).
+    pub(super) env_pg: f32,
+    pub(super) env_critic: f32,
 }
 
 impl Losses {
@@ -68,6 +74,8 @@ impl Losses {
             mon: mean(|l| l.mon),
             critic: mean(|l| l.critic),
             grad_norm: mean(|l| l.grad_norm),
+            env_pg: mean(|l| l.env_pg),
+            env_critic: mean(|l| l.env_critic),
         }
     }
 }
@@ -83,12 +91,28 @@ impl Saver {
             ((&f.value - &rows.returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
         let taus = uniform01(&mut self.rng, d * n * k);
         let a = self.agent_loss(rows, &taus)?;
-        let loss = self.with_penalty((a.loss + &critic_loss)?, &f.raw)?;
+        let mut loss = self.with_penalty((a.loss + &critic_loss)?, &f.raw)?;
+        let (mut env_pg, mut env_critic) = (0.0, 0.0);
+        if let (Some(term), Some(env_rows)) = (&self.env, &rows.env) {
+            let (l, pg, c) = term.loss(
+                &self.layout,
+                &f.x,
+                &f.mu,
+                &f.log_std,
+                env_rows,
+                self.cfg.lambda_critic,
+            )?;
+            loss = (loss + l)?;
+            env_pg = check_finite("env_pg_loss", pg)?;
+            env_critic = check_finite("env_critic_loss", c)?;
+        }
         let losses = Losses {
             actor: check_finite("actor_loss", a.actor)?,
             mon: check_finite("mon_loss", a.mon)?,
             critic: check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
             grad_norm: 0.0,
+            env_pg,
+            env_critic,
         };
         Ok(StepLoss {
             loss,

@@ -1,0 +1,101 @@
+#!/usr/bin/env python3
+"""Tuned peers on Reacher-v5 in its own reward (issue 55): Stable-Baselines3 PPO with
+RL Zoo's Optuna-tuned Reacher hyperparameters (rl_zoo3/hyperparams/ppo.yml, key
+Reacher-v2: VecNormalize on observations and rewards, 1 env, n_steps 512, batch 32,
+5 epochs, gamma 0.9, GAE lambda 1.0, lr 1.04e-4, clip 0.3, ent 7.5e-8, vf 0.95,
+max_grad_norm 0.9) and SB3 SAC at its defaults. The env is gym.make("Reacher-v5")
+with saver_actor.examples:reacher's observation (joint velocities x 0.1, as SAVER's
+runs see it; VecNormalize rescales it anyway), 50 steps, never ended at success.
+
+Every --eval-every env steps, 50 deterministic episodes (env seeds 0-49) as
+bench/custom_env_results.py evaluates SAVER: success (fingertip within 0.02 of the
+target in both coordinates at some step), the return up to success, and "env_return",
+the env's own return over all 50 steps. One JSON line per evaluation on stdout, then
+one with "final": true.
+
+    SB3 venv: pip install stable-baselines3==2.9.2 rl_zoo3 "gymnasium[mujoco]" ./python
+    python bench/sb3_tuned.py {ppo-zoo|sac} --steps 1000000 --seed 0 [--eval-every 50000]
+"""
+import argparse
+import json
+import time
+
+import numpy as np
+import torch
+from saver_actor.examples import reacher
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
+
+torch.set_num_threads(1)
+ap = argparse.ArgumentParser()
+ap.add_argument("algo", choices=["ppo-zoo", "sac"])
+ap.add_argument("--steps", type=int, required=True)
+ap.add_argument("--seed", type=int, default=0)
+ap.add_argument("--eval-every", type=int, default=50_000)
+ap.add_argument("--episodes", type=int, default=50)
+opts = ap.parse_args()
+make_env, decl = reacher()
+
+
+def evaluate(model, norm):
+    """Deterministic episodes (seeds 0..episodes-1): success rate, mean return up to
+    success and mean env return over the whole episode."""
+    env = make_env()
+    to_success, whole, successes = [], [], 0
+    for ep in range(opts.episodes):
+        o, _ = env.reset(seed=ep)
+        total, full, success = 0.0, 0.0, False
+        while True:
+            x = norm.normalize_obs(np.asarray(o)[None]) if norm is not None else np.asarray(o)[None]
+            a, _ = model.predict(x, deterministic=True)
+            prev = o
+            o, r, term, trunc, info = env.step(np.clip(a[0], -1.0, 1.0))
+            full += float(r)
+            if not success:
+                total += float(r)
+                success = bool(decl.outcome(np.asarray(prev)[None], np.asarray(o)[None], [r], [term], [info],
+                                            check=False)[2][0])
+            if term or trunc:
+                break
+        successes += success
+        to_success.append(total)
+        whole.append(full)
+    return {"success": successes / opts.episodes, "return": float(np.mean(to_success)),
+            "env_return": float(np.mean(whole))}
+
+
+class Every(BaseCallback):
+    """Evaluates every --eval-every steps and prints a JSON line."""
+
+    def __init__(self, norm):
+        super().__init__()
+        self.norm, self.next, self.t0 = norm, opts.eval_every, time.time()
+
+    def _on_step(self):
+        if self.num_timesteps >= self.next:
+            self.next += opts.eval_every
+            line = {"algo": opts.algo, "seed": opts.seed, "steps": self.num_timesteps,
+                    "wall_s": round(time.time() - self.t0, 1), **evaluate(self.model, self.norm)}
+            print(json.dumps(line), flush=True)
+        return True
+
+
+if opts.algo == "ppo-zoo":
+    venv = VecNormalize(make_vec_env(make_env, n_envs=1, seed=opts.seed), norm_obs=True, norm_reward=True,
+                        gamma=0.9)
+    model = PPO("MlpPolicy", venv, n_steps=512, batch_size=32, gamma=0.9, learning_rate=0.000104019,
+                ent_coef=7.52585e-08, clip_range=0.3, n_epochs=5, gae_lambda=1.0, max_grad_norm=0.9,
+                vf_coef=0.950368, seed=opts.seed, device="cpu")
+    norm = venv
+else:
+    venv = make_vec_env(make_env, n_envs=1, seed=opts.seed)
+    model = SAC("MlpPolicy", venv, seed=opts.seed, device="cpu")
+    norm = None
+t0 = time.time()
+model.learn(total_timesteps=opts.steps, callback=Every(norm))
+if isinstance(norm, VecNormalize):
+    norm.training = False
+print(json.dumps({"algo": opts.algo, "seed": opts.seed, "steps": opts.steps, "wall_s": round(time.time() - t0, 1),
+                  "final": True, **evaluate(model, norm)}), flush=True)

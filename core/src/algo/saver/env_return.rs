@@ -1,0 +1,403 @@
+//! SAVER's env-return term (docs/ALGORITHM.md §7.2): where the rollouts carry the env's
+//! own scalar reward r (Gymnasium's reward, control cost and all), a scalar critic
+//! V_r(x) learns its discounted return and the agent also follows the policy gradient
+//! of that return, beside the vector term that reaches it through the PCPN:
+//!
+//! L_r   = −w · mean_B Â_r · log π(a | o)        (agent, Â_r normalised over the batch)
+//! L_V_r = λ_c · mean_B (V_r(x) − R_r / s)²       (the scalar critic only)
+//!
+//! with R_r the n-step (or GAE(λ)) return of r / s, s the running root-mean-square of
+//! the env's reward per step (so that the critic's targets are of order one whatever
+//! the env's units), and w = `saver.env_reward`. The term is skipped on a batch whose
+//! env reward is the sum of its progress reward (it would count that signal twice) or
+//! that carries none (the presets).
+
+use crate::algo::{batch_gae, batch_returns, matrix};
+use crate::config::RunConfig;
+use crate::env::EnvLayout;
+use crate::nets::{gaussian_log_prob, Critic, ParamSet};
+use crate::returns::normalize_advantages;
+use crate::rng::SaverRng;
+use crate::rollout::Batch;
+use crate::Result;
+use candle_core::{Device, Tensor};
+use std::cell::Cell;
+
+/// The name of the running mean square of the env reward in a checkpoint.
+const MEAN_SQUARE: &str = "env_critic.reward_mean_square";
+/// Weight of a batch in the running mean square of the env reward.
+const MEAN_SQUARE_RATE: f32 = 0.01;
+
+/// The scalar critic and the state of the term.
+pub(super) struct EnvReturn {
+    /// V_r(o, μ, log σ) ∈ R, named `env_critic.*`.
+    critic: Critic,
+    /// w.
+    weight: f64,
+    /// The running mean square of the env reward per step (0 before the first batch;
+    /// a cell so that a batch's targets are made where the update's other targets are).
+    mean_square: Cell<f32>,
+}
+
+/// What one optimiser step of the term trains on, for some rows.
+pub(super) struct EnvRows {
+    /// [N, 1]: the scalar critic's targets R_r / s.
+    pub returns: Tensor,
+    /// [N]: the normalised advantages Â_r.
+    pub adv: Tensor,
+    /// [N, action_dim]: the actions taken.
+    pub actions: Tensor,
+}
+
+/// A batch's targets and advantages of the term, on the host.
+pub(super) struct EnvTargets {
+    pub returns: Vec<f32>,
+    pub advantages: Vec<f32>,
+}
+
+impl EnvReturn {
+    /// The term of `config`, or none with `saver.env_reward` 0. Its critic draws its
+    /// initial weights from `rng` after the agent's and the vector critic's.
+    pub(super) fn of(
+        config: &RunConfig,
+        layout: &EnvLayout,
+        rng: &mut SaverRng,
+        dev: &Device,
+    ) -> Result<Option<Self>> {
+        if config.saver.env_reward == 0.0 {
+            return Ok(None);
+        }
+        let critic = Critic::named(
+            "env_critic",
+            layout.pcpn_input_dim(),
+            1,
+            &config.hidden,
+            rng,
+            dev,
+        )?;
+        Ok(Some(Self {
+            critic,
+            weight: config.saver.env_reward,
+            mean_square: Cell::new(0.0),
+        }))
+    }
+
+    /// The critic's trainable variables.
+    pub(super) fn params(&self) -> &ParamSet {
+        self.critic.params()
+    }
+
+    /// Whether the term learns from `batch`: it carries the env's reward, and that
+    /// reward is not the sum of the progress reward.
+    pub(super) fn applies(batch: &Batch) -> bool {
+        if batch.env_reward.is_empty() {
+            return false;
+        }
+        let progress = batch.scalar_reward();
+        batch
+            .env_reward
+            .iter()
+            .zip(&progress)
+            .any(|(r, p)| (r - p).abs() > 1e-5 * (1.0 + p.abs()))
+    }
+
+    /// The scalar critic's targets and the normalised advantages of `batch`, from its
+    /// values `v_all` [B + T, 1] at the rows of [`crate::algo::update_rows`] (`n_ends`
+    /// timeouts); updates the running mean square of the reward first.
+    pub(super) fn targets(
+        &self,
+        batch: &Batch,
+        v_all: &Tensor,
+        n_ends: usize,
+        gamma: f32,
+        lambda: f32,
+    ) -> Result<EnvTargets> {
+        let b = batch.len();
+        let ms = batch.env_reward.iter().map(|r| (r * r) as f64).sum::<f64>() / b.max(1) as f64;
+        let before = self.mean_square.get();
+        let mean_square = if before == 0.0 {
+            ms as f32
+        } else {
+            (1.0 - MEAN_SQUARE_RATE) * before + MEAN_SQUARE_RATE * ms as f32
+        };
+        self.mean_square.set(mean_square);
+        let scale = mean_square.sqrt().max(1e-6);
+        let rewards: Vec<f32> = batch.env_reward.iter().map(|r| r / scale).collect();
+        let v_all = v_all.detach();
+        let values: Vec<f32> = v_all.narrow(0, 0, b)?.flatten_all()?.to_vec1()?;
+        let (mut advantages, returns) = if lambda < 1.0 {
+            batch_gae(batch, &rewards, &values, &v_all, n_ends, gamma, lambda)?
+        } else {
+            let r = batch_returns(batch, &rewards, &v_all, n_ends, 1, gamma)?;
+            (r.iter().zip(&values).map(|(r, v)| r - v).collect(), r)
+        };
+        normalize_advantages(&mut advantages, 1, false);
+        Ok(EnvTargets {
+            returns,
+            advantages,
+        })
+    }
+
+    /// V_r at the inputs `x` [N, pcpn_input_dim] → [N, 1].
+    pub(super) fn value(&self, x: &Tensor) -> Result<Tensor> {
+        Ok(self.critic.forward(x)?)
+    }
+
+    /// The term's loss on some rows, whose critic inputs are `x` and whose policy
+    /// outputs are `mu` and `log_std` (in the agent's graph): (L_r + L_V_r, L_r, L_V_r).
+    pub(super) fn loss(
+        &self,
+        layout: &EnvLayout,
+        x: &Tensor,
+        mu: &Tensor,
+        log_std: &Tensor,
+        rows: &EnvRows,
+        lambda_critic: f64,
+    ) -> Result<(Tensor, f32, f32)> {
+        let critic = ((self.critic.forward(x)? - &rows.returns)?
+            .sqr()?
+            .mean_all()?
+            * lambda_critic)?;
+        let log_pi = gaussian_log_prob(layout, mu, log_std, &rows.actions)?;
+        let pg = ((&rows.adv * log_pi)?.mean_all()? * -self.weight)?;
+        let (pg_v, critic_v) = (pg.to_scalar::<f32>()?, critic.to_scalar::<f32>()?);
+        Ok(((pg + critic)?, pg_v, critic_v))
+    }
+
+    /// The rows `idx` (all with `None`) of a batch's targets as one step's [`EnvRows`].
+    pub(super) fn rows(
+        t: &EnvTargets,
+        batch: &Batch,
+        idx: Option<&[usize]>,
+        action_dim: usize,
+        dev: &Device,
+    ) -> Result<EnvRows> {
+        let pick = |data: &[f32], w: usize| -> Vec<f32> {
+            match idx {
+                None => data.to_vec(),
+                Some(idx) => idx
+                    .iter()
+                    .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
+                    .collect(),
+            }
+        };
+        let n = idx.map_or(batch.len(), <[usize]>::len);
+        Ok(EnvRows {
+            returns: matrix(&pick(&t.returns, 1), n, 1, dev)?,
+            adv: Tensor::from_vec(pick(&t.advantages, 1), n, dev)?,
+            actions: matrix(&pick(&batch.actions, action_dim), n, action_dim, dev)?,
+        })
+    }
+
+    /// The running mean square as a checkpoint tensor.
+    pub(super) fn state(&self, dev: &Device) -> Result<(String, Tensor)> {
+        Ok((
+            MEAN_SQUARE.into(),
+            Tensor::new(&[self.mean_square.get()], dev)?,
+        ))
+    }
+
+    /// Takes the running mean square back from a checkpoint (0 when it has none).
+    pub(super) fn restore(&self, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<()> {
+        let saved = match get(MEAN_SQUARE) {
+            Some(t) => t
+                .flatten_all()?
+                .to_vec1::<f32>()?
+                .first()
+                .copied()
+                .unwrap_or(0.0),
+            None => 0.0,
+        };
+        self.mean_square.set(saved);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::algo::tests::{random_batch, random_pcpn};
+    use crate::algo::{Algorithm, Saver};
+    use crate::config::Algo;
+    use crate::env::{EnvBounds, EnvLayout, EnvSpec};
+    use crate::rollout::Batch;
+    use candle_core::{DType, Device, Tensor};
+
+    /// SAVER on a custom env of d = 2 (the point mass's layout: 6 entries, 2 actions),
+    /// with the env-return term at weight `w` and γ = 0.9, λ = 1.
+    fn saver(w: f64) -> (Saver, EnvLayout) {
+        let layout = EnvLayout {
+            obs_dim: 6,
+            continuous: 2,
+            choices: 0,
+            aligned_start: 0,
+            aligned_dim: 2,
+        };
+        let bounds = EnvBounds {
+            obs_low: vec![-1.0; 6],
+            obs_high: vec![1.0; 6],
+            max_change: 0.2,
+        };
+        let spec = EnvSpec::custom("plane", layout, bounds).unwrap();
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+        (config.saver.env_reward, config.gamma) = (w, 0.9);
+        (config.saver.pcpn_tune_lr, config.saver.minibatch_size) = (0.0, 0);
+        let l = spec.layout();
+        (
+            Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap(),
+            l,
+        )
+    }
+
+    fn batch(l: &EnvLayout, env_reward: impl Fn(&Batch, usize) -> f32) -> Batch {
+        let done = (0..12).map(|i| i == 4).collect();
+        let mut b = random_batch(l, 2, 6, 7, 1.0, done);
+        b.env_reward = (0..b.len()).map(|i| env_reward(&b, i)).collect();
+        b
+    }
+
+    fn weights(s: &Saver, prefix: &str) -> Vec<(String, Vec<u32>)> {
+        let bits = |x: &Tensor| x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        s.save_state()
+            .unwrap()
+            .tensors
+            .iter()
+            .filter(|(n, _)| n.starts_with(prefix))
+            .map(|(n, x)| (n.clone(), bits(x).iter().map(|v| v.to_bits()).collect()))
+            .collect()
+    }
+
+    /// Without the env's reward (a preset's rollouts), or with one that is only the
+    /// sum of the progress reward, the term changes nothing: the agent and the vector
+    /// critic take the same step, bit for bit, as a run without the term.
+    #[test]
+    fn no_env_reward_or_the_progress_reward_leaves_the_paper_update() {
+        let (mut off, l) = saver(0.0);
+        let plain = batch(&l, |_, _| 0.0);
+        let mut none = plain.clone();
+        none.env_reward.clear();
+        let progress = batch(&l, |b, i| {
+            b.vector_reward[2 * i] + b.vector_reward[2 * i + 1]
+        });
+        off.update(&none).unwrap();
+        for b in [&none, &progress] {
+            let (mut on, _) = saver(0.5);
+            let stats = on.update(b).unwrap();
+            for net in ["agent", "critic."] {
+                assert_eq!(weights(&on, net), weights(&off, net), "{net}");
+            }
+            let pg = stats.values.iter().find(|v| v.0 == "env_pg_loss").unwrap();
+            assert_eq!(pg.1, 0.0);
+        }
+        // A real env reward moves the agent elsewhere.
+        let (mut on, _) = saver(0.5);
+        on.update(&plain).unwrap_or_else(|e| panic!("{e}"));
+        let (mut cost, _) = saver(0.5);
+        let actions = plain.actions.clone();
+        cost.update(&batch(&l, |_, i| {
+            -(actions[2 * i].powi(2) + actions[2 * i + 1].powi(2))
+        }))
+        .unwrap();
+        assert_ne!(weights(&cost, "agent"), weights(&off, "agent"));
+    }
+
+    /// The scalar critic's targets are the n-step returns of r / s, s the root mean
+    /// square of the batch's rewards (the first batch sets it), by the recursion
+    /// written out here: R_t = r_t / s + γ·R_(t+1), 0 after an episode's end, V of the
+    /// trajectory's last observation after its last step; γ = 0.9. The advantages
+    /// R − V are normalised to mean 0 and variance 1.
+    #[test]
+    fn targets_are_the_scaled_n_step_returns() {
+        let (s, l) = saver(0.5);
+        let b = batch(&l, |_, i| -0.5 + 0.1 * i as f32);
+        let start = s.start(&b).unwrap();
+        let t = start.env.expect("the term runs");
+        let env = s.env.as_ref().unwrap();
+        let scale = (b.env_reward.iter().map(|r| r * r).sum::<f32>() / 12.0).sqrt();
+        let last = crate::algo::matrix(&b.last_obs, 2, l.obs_dim, &Device::Cpu).unwrap();
+        let fwd = s.forward(last).unwrap();
+        let boot: Vec<f32> = env
+            .value(&fwd.x)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap();
+        let mut want = vec![0f32; 12];
+        for e in 0..2 {
+            let mut next = boot[e];
+            for k in (0..6).rev() {
+                let i = e * 6 + k;
+                if b.done[i] {
+                    next = 0.0;
+                }
+                want[i] = b.env_reward[i] / scale + 0.9 * next;
+                next = want[i];
+            }
+        }
+        for (i, (got, want)) in t.returns.iter().zip(&want).enumerate() {
+            assert!((got - want).abs() < 1e-5, "row {i}: {got} against {want}");
+        }
+        let mean = t.advantages.iter().sum::<f32>() / 12.0;
+        let var = t.advantages.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / 12.0;
+        assert!(
+            mean.abs() < 1e-5 && (var - 1.0).abs() < 1e-3,
+            "{mean} {var}"
+        );
+    }
+
+    /// L_r = −w · mean_B Â·log π(a|o), log π of the diagonal Gaussian written out:
+    /// Σ_i −(a_i − μ_i)² / (2σ_i²) − log σ_i − ½ log 2π, on 3 rows of 2 actions.
+    #[test]
+    fn the_policy_gradient_loss_is_the_weighted_log_likelihood() {
+        let (s, l) = saver(0.5);
+        let env = s.env.as_ref().unwrap();
+        let dev = Device::Cpu;
+        let mu = [0.1f32, -0.2, 0.3, 0.0, -0.5, 0.4];
+        let log_std = [-1.0f32, -0.5, 0.0, -0.2, -0.8, -1.2];
+        let actions = [0.3f32, -0.1, 0.0, 0.5, -0.2, 0.9];
+        let adv = [1.0f32, -0.5, 0.25];
+        let rows = super::EnvRows {
+            returns: Tensor::zeros((3, 1), DType::F32, &dev).unwrap(),
+            adv: Tensor::new(&adv, &dev).unwrap(),
+            actions: Tensor::from_slice(&actions, (3, 2), &dev).unwrap(),
+        };
+        let t = |v: &[f32]| Tensor::from_slice(v, (3, 2), &dev).unwrap();
+        let x = Tensor::zeros((3, l.pcpn_input_dim()), DType::F32, &dev).unwrap();
+        let (_, pg, _) = env.loss(&l, &x, &t(&mu), &t(&log_std), &rows, 0.5).unwrap();
+        let mut want = 0.0f64;
+        for r in 0..3 {
+            let mut logp = 0.0f64;
+            for j in 0..2 {
+                let (m, ls, a) = (
+                    mu[2 * r + j] as f64,
+                    log_std[2 * r + j] as f64,
+                    actions[2 * r + j] as f64,
+                );
+                logp += -(a - m).powi(2) / (2.0 * (2.0 * ls).exp())
+                    - ls
+                    - 0.5 * (2.0 * std::f64::consts::PI).ln();
+            }
+            want += adv[r] as f64 * logp;
+        }
+        want *= -0.5 / 3.0;
+        assert!((pg as f64 - want).abs() < 1e-5, "{pg} against {want}");
+    }
+
+    /// The scalar critic and the reward's running mean square survive a checkpoint:
+    /// a restored learner takes the same next step, bit for bit.
+    #[test]
+    fn the_term_survives_a_checkpoint() {
+        let (mut a, l) = saver(0.5);
+        let b = batch(&l, |_, i| -0.1 * (i % 3) as f32);
+        a.update(&b).unwrap();
+        let state = a.save_state().unwrap();
+        assert!(state.get("env_critic.reward_mean_square").is_some());
+        let (mut resumed, _) = saver(0.5);
+        resumed
+            .restore_state(&|n| state.get(n), &state.numbers)
+            .unwrap();
+        a.update(&b).unwrap();
+        resumed.update(&b).unwrap();
+        assert_eq!(weights(&a, ""), weights(&resumed, ""));
+    }
+}
