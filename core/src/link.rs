@@ -51,6 +51,8 @@ pub struct ActorSettings {
     /// Complete the progress reward at success ([`RunConfig::complete_at_success`]):
     /// what a custom env's actor does; preset actors have nothing to complete.
     pub complete_at_success: bool,
+    /// Go on past success ([`RunConfig::continue_past_success`]).
+    pub continue_past_success: bool,
     /// The environment.
     pub env: EnvSpec,
     /// The behaviour policy: how to act and what each step records.
@@ -127,6 +129,7 @@ pub fn settings_from_metadata(meta: &HashMap<String, String>) -> crate::Result<A
         seed: 0,
         max_episode_steps,
         complete_at_success: false,
+        continue_past_success: false,
         env,
         policy,
     })
@@ -142,6 +145,7 @@ impl ActorSettings {
             seed: config.seed,
             max_episode_steps: config.max_episode_steps,
             complete_at_success: config.complete_at_success,
+            continue_past_success: config.continue_past_success,
             env: config.env.clone(),
             policy: crate::algo::policy_family(config),
         }

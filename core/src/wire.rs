@@ -54,6 +54,7 @@ impl From<&ActorSettings> for pb::RunSettings {
             seed: s.seed,
             max_episode_steps: s.max_episode_steps,
             complete_at_success: s.complete_at_success,
+            continue_past_success: s.continue_past_success,
             env: Some((&s.env).into()),
             policy: Some(pb::PolicySpec {
                 family: s.policy.name().to_string(),
@@ -95,6 +96,7 @@ impl TryFrom<&pb::RunSettings> for ActorSettings {
             seed: s.seed,
             max_episode_steps: s.max_episode_steps,
             complete_at_success: s.complete_at_success,
+            continue_past_success: s.continue_past_success,
             env,
             policy,
         })

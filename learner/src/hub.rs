@@ -130,6 +130,7 @@ impl Hub {
                 max_len: config.max_episode_steps,
                 layout: config.env.layout(),
                 success: config.env.success_rule(),
+                continue_past_success: config.continue_past_success,
             },
             config,
             state: Mutex::new(State {

@@ -20,6 +20,9 @@ pub struct EpisodeRules {
     pub layout: EnvLayout,
     /// When an episode succeeds (`None`: the env's own word, unchecked).
     pub success: Option<SuccessRule>,
+    /// Episodes go on past success (`continue_past_success`): one that ends at the
+    /// step limit inside the success box is a timeout and a success.
+    pub continue_past_success: bool,
 }
 
 /// How far apart p + Δp and the p' a client reports may be: rounding of the client's
@@ -118,14 +121,16 @@ impl Ledger {
                 if ep.length == 0 || ep.length > max_len {
                     return bad(format!("length {} is not in 1..={max_len}", ep.length));
                 }
-                if !ep.success && ep.length != max_len {
+                let timeout = r.timeouts.binary_search(&(s as u32)).is_ok();
+                if (!ep.success || timeout) && ep.length != max_len {
                     return bad(format!(
-                        "an episode that ends without success ends at the step limit \
+                        "an episode that ends without success, or at a timeout, ends at \
+                         the step limit \
                          {max_len}, not after {} steps",
                         ep.length
                     ));
                 }
-                if r.timeouts.binary_search(&(s as u32)).is_ok() && ep.success {
+                if timeout && ep.success && !rules.continue_past_success {
                     return bad("a timeout is no success".into());
                 }
                 if let (true, Some(rule)) = (ep.success, &rules.success) {
@@ -297,6 +302,7 @@ mod tests {
                 aligned_dim: 1,
             },
             success,
+            continue_past_success: false,
         }
     }
 
@@ -387,6 +393,29 @@ mod tests {
         assert!(l.check(&r, &rules(None)).is_err());
         r.episodes[0].success = false;
         assert!(l.check(&r, &rules(None)).is_ok());
+    }
+
+    /// A run that goes on past success: an episode that ends at the step limit inside
+    /// the success box (p = 0.05 against the radius 0.1) is a timeout and a success,
+    /// but one ending outside it (p = 0.5), or a timeout before the limit, is not.
+    #[test]
+    fn past_success_a_timeout_inside_the_box_is_a_success() {
+        let l = Ledger::fresh(1);
+        let on = EpisodeRules {
+            continue_past_success: true,
+            ..rules(NEAR_ORIGIN)
+        };
+        let end = |p: f32, length: u32| {
+            let mut r = walk(5, p, &[0.0; 4], &[3], &[(length, true, 0.0)]);
+            (r.timeouts, r.timeout_obs) = (vec![3], vec![p]);
+            r
+        };
+        assert!(l.check(&end(0.05, 1000), &on).is_ok());
+        assert!(l.check(&end(0.05, 1000), &rules(NEAR_ORIGIN)).is_err());
+        let outside = l.check(&end(0.5, 1000), &on).unwrap_err().to_string();
+        assert!(outside.contains("beyond the success radius"), "{outside}");
+        let early = l.check(&end(0.05, 40), &on).unwrap_err().to_string();
+        assert!(early.contains("ends at the step limit 1000"), "{early}");
     }
 
     /// [`rollout`] whose p starts at `start` and moves by `deltas` (the step after a

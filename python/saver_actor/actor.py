@@ -288,7 +288,8 @@ class Actor:
                         raise Refused(f"weights version {version} do not decode: {e}") from None
                     policy = policy_for(s.policy.family, tensors, s.env.layout, params)
                     policy_version = version
-                msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps, complete)
+                msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps, complete,
+                                         s.continue_past_success)
                 msg.actor_id, msg.session, msg.seq, msg.policy_version = reply.actor_id, reply.session, seq, version
                 rollouts.send(msg)
                 self.summary.rollouts += 1
@@ -314,9 +315,10 @@ class Actor:
         """Closes the envs (and ends their worker processes, if any)."""
         self.envs.close()
 
-    def _collect(self, policy, rng, obs, running, returns, n, limit, complete=False):
+    def _collect(self, policy, rng, obs, running, returns, n, limit, complete=False, past=False):
         """n steps of every env; the rollout message (env-major) and the new observations
-        (`complete`: the progress completed at success, EnvDecl.completes)."""
+        (`complete`: the progress completed at success, EnvDecl.completes; `past`: the
+        episodes go on past success, RunSettings.continue_past_success)."""
         d = self.decl
         e = self.n_envs
         o_all = np.empty((e, n + 1, d.obs_dim), dtype=np.float32)
@@ -337,22 +339,27 @@ class Actor:
             nxt, rewards, terminated, truncated, infos = self.envs.step(actions)
             env_time += time.perf_counter() - t0
             # Bounds are checked for the whole rollout below (before anything is sent).
-            delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False, complete=complete)
+            # Past success an episode ends where the env ends it (inside the box) or at the
+            # limit, and only the env's own end completes the progress.
+            terminated = np.asarray(terminated, dtype=bool)
+            delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False,
+                                          complete=complete & terminated if past else complete)
+            ends = success & terminated if past else success
             delta_all[:, t], rew_all[:, t] = delta, r
             env_rew_all[:, t] = rewards
             running += 1
             returns += r.astype(np.float32).sum(axis=1)
-            timeout = ~success & (running >= limit)
+            timeout = ~ends & (running >= limit)
             if terminated.any() and (terminated & ~success).any():
                 i = int(np.argmax(terminated & ~success))
                 raise EnvError(f"{d.name}: the env ended an episode at step {running[i]} without success; SAVER "
                                f"episodes end at the goal or at the step limit (declare success_radius, or make "
                                f"the env terminate only at its goal)")
-            if truncated.any() and (truncated & ~success & ~timeout).any():
-                i = int(np.argmax(truncated & ~success & ~timeout))
+            if truncated.any() and (truncated & ~ends & ~timeout).any():
+                i = int(np.argmax(truncated & ~ends & ~timeout))
                 raise EnvError(f"{d.name}: the env truncated its episode at step {running[i]}, before the run's "
                                f"step limit {limit}; set max_episode_steps = {running[i]} in the learner's config")
-            done = success | timeout
+            done = ends | timeout
             done_all[:, t] = done
             obs[:] = nxt
             if done.any():

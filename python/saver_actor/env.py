@@ -72,7 +72,9 @@ class EnvDecl:
         each coordinate's progress reward also gets the rest of its distance,
         |p'_j - g_j| (capped at max_change), so a successful episode is credited the
         whole way to the goal and stopping short of the box costs the whole remainder
-        (docs/ALGORITHM.md §7.1). None (the default): as the learner's run says
+        (docs/ALGORITHM.md §7.1); in a run that goes on past success
+        (RunSettings.continue_past_success), only where the env itself ends the
+        episode. None (the default): as the learner's run says
         (RunSettings.complete_at_success; on for SAVER on a custom env), where the env
         declares a success_radius and keeps the default progress reward. True needs
         both; False: never.
@@ -250,7 +252,8 @@ class EnvDecl:
         """(state_delta, vector_reward, success) of one step of every env, [E, d] and
         [E]; checked against max_change unless `check` is false (the actor checks a
         whole rollout at once: check_steps). `complete`: whether to complete the
-        progress at success (None: as `completes` says outside a run)."""
+        progress at success, for every env or per env ([E] booleans), None: as
+        `completes` says outside a run."""
         a = self.aligned
         p, q = obs[:, a], next_obs[:, a]
         g = 0.0 if self.goal is None else obs[:, self.goal]
@@ -267,8 +270,10 @@ class EnvDecl:
             success = np.max(left, axis=1) < self.success_radius
         else:
             success = np.asarray(terminated, dtype=bool)
-        if self.completes(False) if complete is None else complete:
-            r = np.where(success[:, None], np.minimum(r + left, self.max_change), r)
+        c = self.completes(False) if complete is None else complete
+        if np.any(c):
+            at = success & np.asarray(c, dtype=bool)
+            r = np.where(at[:, None], np.minimum(r + left, self.max_change), r)
         if check:
             self.check_steps(delta, r, "a step")
         return delta, r, success

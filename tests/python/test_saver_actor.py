@@ -521,6 +521,41 @@ def test_progress_completed_at_success():
     print("  completed progress: 0.08 / 0.06 on the step into the box, capped at max_change")
 
 
+def test_episodes_go_on_past_success_when_the_run_asks():
+    """--continue-past-success: on Reacher with a success box of 0.5 (the fingertip is
+    always within 0.41 of the target) every step succeeds, so an episode that ends at
+    success is one step long; past success it goes on to the 50-step limit, ends
+    inside the box (a timeout and a success, which the learner's ledger accepts) and
+    carries the env's own reward (the progress completed only where the env ends an
+    episode, which Reacher never does). A mask completes per env."""
+    from saver_actor.examples import pointmass
+    _, plain = pointmass()
+    o = np.array([[0.42, 0.44, 0.0, 0.0, 0.5, 0.5]] * 2)
+    n = np.array([[0.47, 0.46, 0.0, 0.0, 0.5, 0.5]] * 2)
+    _, r, _ = plain.outcome(o, n, [0.0, 0.0], [False, False], [{}, {}], complete=np.array([True, False]))
+    assert np.round(r, 6).tolist() == [[0.08, 0.06], [0.05, 0.02]], r
+    make_env, decl = reacher(success_radius=0.5)
+    cfg = os.path.join(TMP, "reacher-box.toml")
+    with open(cfg, "w") as f:
+        f.write("max_episode_steps = 50\n" + decl.toml())
+    for past in (False, True):
+        name = f"past{past}"
+        srv = learner(name, "--config", cfg, "--algo", "a2c", "--steps", "2000", "--actors", "1", "--seed", "3",
+                      "--continue-past-success", str(past).lower(), "--exit-when-done").wait_ready()
+        actor = Actor(make_env, decl, Connection(srv.url), n_envs=4, give_up=30, log=lambda m: None)
+        try:
+            s = actor.run()
+        finally:
+            actor.close()
+        assert srv.proc.wait(60) == 0
+        want = s.steps // 50 if past else s.steps
+        assert s.successes == s.episodes and abs(s.episodes - want) <= 4, (past, s)
+        with open(os.path.join(TMP, name, "metrics.csv")) as f:
+            last = list(csv.DictReader(f))[-1]
+        assert float(last["mean_ep_len_100"]) == (50.0 if past else 1.0), last
+    print("  past success: 50-step episodes ending in the box, accepted by the learner")
+
+
 def test_check_finds_what_a_run_would_refuse():
     """`saver-actor check` before a long run: the line env passes as declared; declared
     with max_change 0.01 (it moves 0.05) or ending its episodes without success, it

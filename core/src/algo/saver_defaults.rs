@@ -256,6 +256,17 @@ mod tests {
                 e.contains("complete_at_success") && e.contains("own reward"),
                 "{e}"
             );
+            // The paper's update on every preset: no env-return term, episodes that
+            // end at success (asking to go on past it is refused).
+            assert_eq!(c.saver.env_reward, 0.0, "{kind:?}");
+            assert!(!c.continue_past_success, "{kind:?}");
+            let mut past = c.clone();
+            past.continue_past_success = true;
+            let e = validate(&past).unwrap_err().to_string();
+            assert!(
+                e.contains("continue_past_success") && e.contains("ends its episodes"),
+                "{e}"
+            );
         }
     }
 }

@@ -207,6 +207,13 @@ pub struct RunConfig {
     /// RunSettings; a preset env's actors have nothing to complete. Off: the paper.
     #[serde(default)]
     pub complete_at_success: bool,
+    /// Ask a custom env's actors to go on past success: an episode then ends only
+    /// where the env ends it or at the step limit, so what the policy does at the goal
+    /// (holding still, or paying control cost) is in its returns; success is ending
+    /// inside the box. Travels in RunSettings; a preset's episodes end at success.
+    /// Off: the paper (docs/ALGORITHM.md §7.2).
+    #[serde(default)]
+    pub continue_past_success: bool,
     /// A2C value-loss weight.
     pub value_coef: f64,
     /// Off-policy correction of rollouts acted by an older policy (async mode): V-trace
@@ -279,6 +286,7 @@ impl RunConfig {
                 .unwrap_or(1000),
             bootstrap_timeout: false,
             complete_at_success: false,
+            continue_past_success: false,
             value_coef: 0.5,
             vtrace: false,
             rho_bar: 1.0,
@@ -377,6 +385,16 @@ impl RunConfig {
                 format!(
                     "the preset env {} has its own reward; only a custom env's actors \
                      complete the progress reward at success",
+                    self.env.name()
+                ),
+            );
+        }
+        if self.continue_past_success && self.env.kind().is_some() {
+            return bad(
+                "continue_past_success",
+                format!(
+                    "the preset env {} ends its episodes at success; only a custom env's \
+                     actors go on past it",
                     self.env.name()
                 ),
             );

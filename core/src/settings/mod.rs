@@ -237,6 +237,8 @@ pub struct RunSettings {
     pub bootstrap_timeout: Option<bool>,
     #[arg(long, help = help("Custom env: the actors credit a step that ends inside the success box with each coordinate's remaining distance |p' − g| (the default progress reward only)", "complete_at_success"))]
     pub complete_at_success: Option<bool>,
+    #[arg(long, help = help("Custom env: the actors go on past success until the env ends the episode or the step limit (success: ending inside the box), so the policy learns what to do at the goal", "continue_past_success"))]
+    pub continue_past_success: Option<bool>,
     #[arg(long, allow_hyphen_values = true, help = help("A2C: weight of the value loss", "value_coef"))]
     pub value_coef: Option<f64>,
     #[arg(long, help = help("Correct rollouts acted by an older policy (async) with V-trace targets and ratio-weighted advantages (A2C, SAVER)", "vtrace"))]
