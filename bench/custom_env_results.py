@@ -9,7 +9,7 @@ each run's learner folder (metrics.csv, per_dim.csv) stays under --out.
 
     python3 bench/custom_env_results.py target/release/saver --factory saver_actor.examples:pointmass \\
         --steps 300000 --seeds 0 1 2 [--algos "a2c,saver,saver --saver-target predicted"] [--extra "FLAGS"]
-        [--max-steps 200] [--out DIR]
+        [--max-steps 200] [--out DIR] [--curve-every STEPS]
 
 --algos: comma-separated algorithms, each optionally followed by flags of its own (all
 SAVER variants of one invocation share one PCPN).
@@ -30,6 +30,8 @@ ap.add_argument("--algos", default="a2c,saver")
 ap.add_argument("--extra", default="", help="flags for every learner")
 ap.add_argument("--max-steps", type=int, default=200, help="the learner's max_episode_steps")
 ap.add_argument("--out", default=None, help="folder for the learners' run folders (default: a temp folder)")
+ap.add_argument("--curve-every", type=int, default=0,
+                help="also evaluate the weights every so many steps while the run trains (\"curve\" in the JSON)")
 opts = ap.parse_args()
 sys.argv = ["custom_env_results", opts.saver]
 sys.path.insert(0, os.path.join(here, "..", "tests", "python"))
@@ -56,9 +58,12 @@ for variant in opts.algos.split(","):
         name = f"{decl.name}-{algo}-seed{seed}" + "".join(flags).replace("-", "_")
         shutil.rmtree(os.path.join(out, name), ignore_errors=True)  # a fresh run, not a resumed one
         before, after, _, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
-                                              store if saver else None, name, opts.max_steps, out, 100 * seed)
+                                              store if saver else None, name, opts.max_steps, out, 100 * seed,
+                                              opts.curve_every)
         print(json.dumps({"env": decl.name, "algo": variant, "extra": opts.extra, "seed": seed, "steps": opts.steps,
                           "wall_s": round(wall, 1), "pcpn_wait_s": round(t.LAST_RUN["pcpn_wait_s"], 1),
-                          "untrained": rounded(before), "trained": rounded(after)}), flush=True)
+                          "untrained": rounded(before), "trained": rounded(after),
+                          **({"curve": [{"steps": c["steps"], **rounded(c)} for c in t.LAST_RUN["curve"]]}
+                             if opts.curve_every else {})}), flush=True)
 if store is not None:
     store.stop()

@@ -269,6 +269,7 @@ class Actor:
             obs = np.stack(self._reset(range(e), s.seed, reply.actor_id))
             running = np.zeros(e, dtype=np.int64)
             returns = np.zeros(e, dtype=np.float32)
+            entered = np.zeros(e, dtype=bool)
             want, seq, interval, last = 0, 0, 0.01, None
             policy, policy_version = None, -1
             while not self.stop.is_set():
@@ -289,7 +290,7 @@ class Actor:
                     policy = policy_for(s.policy.family, tensors, s.env.layout, params)
                     policy_version = version
                 msg, obs = self._collect(policy, rng, obs, running, returns, n, s.max_episode_steps, complete,
-                                         s.continue_past_success)
+                                         entered if s.continue_past_success else None)
                 msg.actor_id, msg.session, msg.seq, msg.policy_version = reply.actor_id, reply.session, seq, version
                 rollouts.send(msg)
                 self.summary.rollouts += 1
@@ -315,10 +316,12 @@ class Actor:
         """Closes the envs (and ends their worker processes, if any)."""
         self.envs.close()
 
-    def _collect(self, policy, rng, obs, running, returns, n, limit, complete=False, past=False):
+    def _collect(self, policy, rng, obs, running, returns, n, limit, complete=False, entered=None):
         """n steps of every env; the rollout message (env-major) and the new observations
-        (`complete`: the progress completed at success, EnvDecl.completes; `past`: the
-        episodes go on past success, RunSettings.continue_past_success)."""
+        (`complete`: the progress completed at success, EnvDecl.completes; `entered`: in
+        a run that goes on past success, RunSettings.continue_past_success, whether each
+        env's episode has entered the success box yet, updated here)."""
+        past = entered is not None
         d = self.decl
         e = self.n_envs
         o_all = np.empty((e, n + 1, d.obs_dim), dtype=np.float32)
@@ -340,11 +343,14 @@ class Actor:
             env_time += time.perf_counter() - t0
             # Bounds are checked for the whole rollout below (before anything is sent).
             # Past success an episode ends where the env ends it (inside the box) or at the
-            # limit, and only the env's own end completes the progress.
+            # limit, and the progress is completed on its first entry into the box (or
+            # where the env ends it there).
             terminated = np.asarray(terminated, dtype=bool)
             delta, r, success = d.outcome(obs, nxt, rewards, terminated, infos, check=False,
-                                          complete=complete & terminated if past else complete)
+                                          complete=complete & (terminated | ~entered) if past else complete)
             ends = success & terminated if past else success
+            if past:
+                entered |= success
             delta_all[:, t], rew_all[:, t] = delta, r
             env_rew_all[:, t] = rewards
             running += 1
@@ -373,6 +379,8 @@ class Actor:
                     self.summary.episodes += 1
                     self.summary.successes += int(success[i])
                     running[i], returns[i] = 0, 0.0
+                    if past:
+                        entered[i] = False
                 obs[ended] = self._reset(ended)
         o_all[:, n] = obs
         d.check_obs(o_all, "a step")

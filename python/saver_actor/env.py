@@ -73,8 +73,8 @@ class EnvDecl:
         |p'_j - g_j| (capped at max_change), so a successful episode is credited the
         whole way to the goal and stopping short of the box costs the whole remainder
         (docs/ALGORITHM.md §7.1); in a run that goes on past success
-        (RunSettings.continue_past_success), only where the env itself ends the
-        episode. None (the default): as the learner's run says
+        (RunSettings.continue_past_success), on the episode's first step into the box
+        and where the env itself ends it. None (the default): as the learner's run says
         (RunSettings.complete_at_success; on for SAVER on a custom env), where the env
         declares a success_radius and keeps the default progress reward. True needs
         both; False: never.

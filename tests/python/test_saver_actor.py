@@ -26,6 +26,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import grpc
@@ -525,9 +526,8 @@ def test_episodes_go_on_past_success_when_the_run_asks():
     """--continue-past-success: on Reacher with a success box of 0.5 (the fingertip is
     always within 0.41 of the target) every step succeeds, so an episode that ends at
     success is one step long; past success it goes on to the 50-step limit, ends
-    inside the box (a timeout and a success, which the learner's ledger accepts) and
-    carries the env's own reward (the progress completed only where the env ends an
-    episode, which Reacher never does). A mask completes per env."""
+    inside the box (a timeout and a success, which the learner's ledger accepts; the
+    progress completed on its first step only). A mask completes per env."""
     from saver_actor.examples import pointmass
     _, plain = pointmass()
     o = np.array([[0.42, 0.44, 0.0, 0.0, 0.5, 0.5]] * 2)
@@ -716,11 +716,32 @@ def custom_env(factory):
 LAST_RUN: dict = {}  # custom_run's latest timings besides its wall time
 
 
-def custom_run(factory, algo, steps, extra=(), pcpn=None, name=None, max_steps=50, out=None, actor_seed=0):
+def learning_curve(url, every, settings, make_env, decl, max_steps, stop, rows):
+    """While the run at `url` trains: each time its steps pass a multiple of `every`,
+    `evaluate` of its newest weights, appended to `rows` with the steps (until `stop`
+    is set or the run has finished)."""
+    nxt = every
+    with grpc.insecure_channel(url[len("http://"):]) as ch:
+        stub = pb_grpc.LearnerStub(ch)
+        while not stop.is_set():
+            status = stub.Status(pb.StatusRequest(), timeout=30)
+            if status.steps >= nxt or status.finished:
+                w = stub.GetWeights(pb.WeightsRequest(min_version=0), timeout=30)
+                rows.append({"steps": status.steps, **evaluate(load(w.safetensors), settings, make_env, decl,
+                                                               max_steps)})
+                nxt = (status.steps // every + 1) * every
+                if status.finished:
+                    return
+            time.sleep(0.5)
+
+
+def custom_run(factory, algo, steps, extra=(), pcpn=None, name=None, max_steps=50, out=None, actor_seed=0,
+               curve_every=0):
     """A learner on the env of `factory` (saver_actor.examples:NAME) and two Python actor
     processes of 4 envs each (their samples feed `pcpn`, a pcpn-trainer, for SAVER);
     returns (untrained, trained) from `evaluate`, the run's RegisterReply.settings and
-    its wall time."""
+    its wall time. With `curve_every` the trained weights are also evaluated every so
+    many steps while the run trains, into LAST_RUN["curve"]."""
     make_env, decl = custom_env(factory)
     out = out or TMP
     cfg = os.path.join(out, f"{decl.name}.toml")
@@ -754,11 +775,20 @@ def custom_run(factory, algo, steps, extra=(), pcpn=None, name=None, max_steps=5
                                             "--learner", srv.url, "--envs", "4", "--seed", str(actor_seed + i)],
                                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
         start = time.time()
+        stop, LAST_RUN["curve"] = threading.Event(), []
+        curve = threading.Thread(target=learning_curve, daemon=True,
+                                 args=(srv.url, curve_every, settings, make_env, decl, max_steps, stop,
+                                       LAST_RUN["curve"]))
+        if curve_every:
+            curve.start()
         for a in actors:
             text, _ = a.communicate(timeout=7200)
             assert a.returncode == 0, text[-3000:]
             assert "run finished" in text, text[-2000:]
         wall = time.time() - start
+        if curve_every:
+            curve.join(600)
+            stop.set()
         with grpc.insecure_channel(srv.url[len("http://"):]) as ch:
             stub = pb_grpc.LearnerStub(ch)
             status = stub.Status(pb.StatusRequest(), timeout=30)

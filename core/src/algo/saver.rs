@@ -88,6 +88,9 @@ pub struct Saver {
     vtrace: Option<super::Vtrace>,
     /// The env-return term (`saver.env_reward` > 0; env_return.rs).
     env: Option<EnvReturn>,
+    /// In a run that goes on past success, the success box: a step that starts inside
+    /// it has no vector advantage (its progress is only noise around the goal).
+    at_goal: Option<crate::env::SuccessRule>,
 }
 
 /// How the agent's gradient through the PCPN is computed.
@@ -182,6 +185,10 @@ impl Saver {
                 ..v
             }),
             env,
+            at_goal: config
+                .continue_past_success
+                .then(|| config.env.success_rule())
+                .flatten(),
         })
     }
 
@@ -296,6 +303,14 @@ impl Saver {
         )?;
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
+        }
+        if let Some(rule) = &self.at_goal {
+            let (o, a0) = (self.layout.obs_dim, self.layout.aligned_start);
+            for (row, adv) in batch.obs.chunks_exact(o).zip(adv_host.chunks_exact_mut(d)) {
+                if rule.distance(row, &row[a0..a0 + d]) < rule.radius {
+                    adv.fill(0.0);
+                }
+            }
         }
         let target = match self.cfg.target {
             DeltaTarget::Observed => Cow::Borrowed(batch.state_delta.as_slice()),

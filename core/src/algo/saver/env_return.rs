@@ -222,9 +222,9 @@ mod tests {
     use crate::rollout::Batch;
     use candle_core::{DType, Device, Tensor};
 
-    /// SAVER on a custom env of d = 2 (the point mass's layout: 6 entries, 2 actions),
-    /// with the env-return term at weight `w` and γ = 0.9, λ = 1.
-    fn saver(w: f64) -> (Saver, EnvLayout) {
+    /// SAVER's config on a custom env of d = 2 (the point mass's layout: 6 entries, 2
+    /// actions), with the env-return term at weight `w` and γ = 0.9, λ = 1.
+    fn config(w: f64) -> crate::config::RunConfig {
         let layout = EnvLayout {
             obs_dim: 6,
             continuous: 2,
@@ -241,7 +241,12 @@ mod tests {
         let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
         (config.saver.env_reward, config.gamma) = (w, 0.9);
         (config.saver.pcpn_tune_lr, config.saver.minibatch_size) = (0.0, 0);
-        let l = spec.layout();
+        config
+    }
+
+    fn saver(w: f64) -> (Saver, EnvLayout) {
+        let config = config(w);
+        let l = config.env.layout();
         (
             Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap(),
             l,
@@ -381,6 +386,40 @@ mod tests {
         }
         want *= -0.5 / 3.0;
         assert!((pg as f64 - want).abs() < 1e-5, "{pg} against {want}");
+    }
+
+    /// Past success (`continue_past_success`) a step that starts inside the success box
+    /// (radius 0.3 around the origin; the rows' p are uniform in [-1, 1]²) has no
+    /// vector advantage, and every other row keeps the advantage it has without the
+    /// flag, bit for bit.
+    #[test]
+    fn past_success_the_steps_at_the_goal_have_no_vector_advantage() {
+        let (_, l) = saver(0.5);
+        let b = batch(&l, |_, i| -0.1 * i as f32);
+        let advantages = |past: bool| {
+            let rule = crate::env::SuccessRule {
+                radius: 0.3,
+                goal_start: None,
+            };
+            let mut config = config(0.5);
+            config.env = config.env.clone().with_success(Some(rule)).unwrap();
+            config.continue_past_success = past;
+            let s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+            s.start(&b).unwrap().adv_host
+        };
+        let (free, past) = (advantages(false), advantages(true));
+        let mut inside = 0;
+        for (k, row) in b.obs.chunks_exact(6).enumerate() {
+            let at_goal = row[0].abs() < 0.3 && row[1].abs() < 0.3;
+            inside += at_goal as usize;
+            let want: &[f32] = if at_goal {
+                &[0.0, 0.0]
+            } else {
+                &free[2 * k..2 * k + 2]
+            };
+            assert_eq!(&past[2 * k..2 * k + 2], want, "row {k}");
+        }
+        assert!(inside > 0 && inside < 12, "{inside} of 12 rows inside");
     }
 
     /// The scalar critic and the reward's running mean square survive a checkpoint:
