@@ -109,8 +109,11 @@ pub const CUSTOM_SAVER_MINIBATCH_SIZE: usize = 128;
 /// The weight of SAVER's env-return term on a custom env (docs/ALGORITHM.md §7.2): the
 /// progress reward does not see what else the env's reward counts (Reacher-v5's
 /// control cost), so a scalar critic and a policy gradient on the env's own reward sit
-/// beside the vector term. Presets send no env reward and keep the paper's update.
-pub const CUSTOM_SAVER_ENV_REWARD: f64 = 0.0;
+/// beside the vector term. On Reacher-v5 (1 M steps, one PCPN, seeds 0-1) 0.3 took the
+/// return up to success from −9.3 / −7.2 to −3.8 / −4.3 and the whole episode's from
+/// −14.2 / −13.3 to −7.7 / −7.9 at success 0.98 (1.0 gave −10.1 / −7.6). Presets send
+/// no env reward and keep the paper's update.
+pub const CUSTOM_SAVER_ENV_REWARD: f64 = 0.3;
 
 /// SAVER's defaults over the paper's settings.
 pub(crate) fn recommend(c: &mut RunConfig) {
@@ -214,6 +217,13 @@ mod tests {
         assert!(c.lr_decay);
         assert_eq!(c.saver.minibatch_size, CUSTOM_SAVER_MINIBATCH_SIZE);
         assert_eq!(c.head.log_std_bounds, Some((CUSTOM_SAVER_LOG_STD_MIN, 0.0)));
+        assert_eq!(c.saver.env_reward, CUSTOM_SAVER_ENV_REWARD);
+        assert!(!c.continue_past_success);
+        assert_eq!(
+            RunConfig::paper(&custom, Algo::Saver, 1).saver.env_reward,
+            0.0
+        );
+        assert_eq!(recommended(&custom, Algo::A2c, 1).saver.env_reward, 0.0);
         let paper = RunConfig::paper(&custom, Algo::Saver, 1);
         assert_eq!(
             (paper.saver.minibatch_size, paper.head.log_std_bounds),
