@@ -49,7 +49,7 @@ const STATS_TUNED: &[&str] = &[
 const STATS: &[&str] = STATS_TUNED.split_at(STATS_TUNED.len() - 1).0;
 
 /// The env-return term's statistics, when the run has it (0 on a batch it skips).
-const ENV_STATS: &[&str] = &["env_pg_loss", "env_critic_loss"];
+const ENV_STATS: &[&str] = &["env_pg_loss", "env_pg_scale", "env_critic_loss"];
 
 /// The SAVER learner state.
 pub struct Saver {

@@ -3,12 +3,17 @@
 //! V_r(x) learns its discounted return and the agent also follows the policy gradient
 //! of that return, beside the vector term that reaches it through the PCPN:
 //!
-//! L_r   = −w · mean_B Â_r · log π(a | o)        (agent, Â_r normalised over the batch)
+//! L_r   = −c · mean_B Â_r · log π(a | o)        (agent, Â_r normalised over the batch)
 //! L_V_r = λ_c · mean_B (V_r(x) − R_r / s)²       (the scalar critic only)
+//!
+//! c = w · |∂(L_a + L_mon)/∂(μ, log σ)| / |∂(−mean Â_r log π)/∂(μ, log σ)| on each
+//! step's rows: w = `saver.env_reward` is the ratio of the env term's push on the
+//! policy outputs to the PCPN's (the PCPN's is ~10⁴ times smaller than a plain policy
+//! gradient's, so a fixed weight would hand the update to the env term).
 //!
 //! with R_r the n-step (or GAE(λ)) return of r / s, s the running root-mean-square of
 //! the env's reward per step (so that the critic's targets are of order one whatever
-//! the env's units), and w = `saver.env_reward`. The term is skipped on a batch whose
+//! the env's units). The term is skipped on a batch whose
 //! env reward is the sum of its progress reward (it would count that signal twice) or
 //! that carries none (the presets).
 
@@ -20,7 +25,7 @@ use crate::returns::normalize_advantages;
 use crate::rng::SaverRng;
 use crate::rollout::Batch;
 use crate::Result;
-use candle_core::{Device, Tensor};
+use candle_core::{Device, Tensor, Var};
 use std::cell::Cell;
 
 /// The name of the running mean square of the env reward in a checkpoint.
@@ -143,25 +148,62 @@ impl EnvReturn {
         Ok(self.critic.forward(x)?)
     }
 
-    /// The term's loss on some rows, whose critic inputs are `x` and whose policy
-    /// outputs are `mu` and `log_std` (in the agent's graph): (L_r + L_V_r, L_r, L_V_r).
-    pub(super) fn loss(
+    /// The scalar critic's loss `λ_c · mean (V_r(x) − R_r / s)²` on some rows whose
+    /// critic inputs are `x`.
+    pub(super) fn critic_loss(
         &self,
-        layout: &EnvLayout,
         x: &Tensor,
+        rows: &EnvRows,
+        lambda_critic: f64,
+    ) -> Result<Tensor> {
+        Ok(((self.critic.forward(x)? - &rows.returns)?
+            .sqr()?
+            .mean_all()?
+            * lambda_critic)?)
+    }
+
+    /// The unit-weight policy-gradient loss `−mean Â_r · log π(a | o)` at the policy
+    /// outputs `mu`, `log_std` (their values only) and its gradient with respect to
+    /// them: (loss, dμ, d log σ).
+    pub(super) fn policy_grads(
+        layout: &EnvLayout,
         mu: &Tensor,
         log_std: &Tensor,
         rows: &EnvRows,
-        lambda_critic: f64,
-    ) -> Result<(Tensor, f32, f32)> {
-        let critic = ((self.critic.forward(x)? - &rows.returns)?
-            .sqr()?
-            .mean_all()?
-            * lambda_critic)?;
-        let log_pi = gaussian_log_prob(layout, mu, log_std, &rows.actions)?;
-        let pg = ((&rows.adv * log_pi)?.mean_all()? * -self.weight)?;
-        let (pg_v, critic_v) = (pg.to_scalar::<f32>()?, critic.to_scalar::<f32>()?);
-        Ok(((pg + critic)?, pg_v, critic_v))
+    ) -> Result<(f32, Tensor, Tensor)> {
+        let (mu, log_std) = (
+            Var::from_tensor(&mu.detach())?,
+            Var::from_tensor(&log_std.detach())?,
+        );
+        let log_pi = gaussian_log_prob(layout, mu.as_tensor(), log_std.as_tensor(), &rows.actions)?;
+        let loss = ((&rows.adv * log_pi)?.mean_all()? * -1.0)?;
+        let grads = loss.backward()?;
+        let grad = |v: &Var| -> Result<Tensor> {
+            Ok(match grads.get(v.as_tensor()) {
+                Some(g) => g.clone(),
+                None => v.as_tensor().zeros_like()?,
+            })
+        };
+        Ok((loss.to_scalar::<f32>()?, grad(&mu)?, grad(&log_std)?))
+    }
+
+    /// The scale c of the unit policy gradient (g_r) beside the vector term's (g_v),
+    /// both over μ and log σ of the same rows: c = w · |g_v| / |g_r|, so that w is the
+    /// ratio of the two pushes whatever the env's units (0 where g_r is 0).
+    pub(super) fn scale(&self, vector: [&Tensor; 2], env: [&Tensor; 2]) -> Result<f32> {
+        let norm = |ts: [&Tensor; 2]| -> Result<f64> {
+            let mut sq = 0.0;
+            for t in ts {
+                sq += t.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
+            }
+            Ok(sq.sqrt())
+        };
+        let (v, r) = (norm(vector)?, norm(env)?);
+        Ok(if r > 0.0 {
+            (self.weight * v / r) as f32
+        } else {
+            0.0
+        })
     }
 
     /// The rows `idx` (all with `None`) of a batch's targets as one step's [`EnvRows`].
@@ -216,7 +258,7 @@ impl EnvReturn {
 #[cfg(test)]
 mod tests {
     use crate::algo::tests::{random_batch, random_pcpn};
-    use crate::algo::{Algorithm, Saver};
+    use crate::algo::{Algorithm, GradPath, Saver};
     use crate::config::Algo;
     use crate::env::{EnvBounds, EnvLayout, EnvSpec};
     use crate::rollout::Batch;
@@ -350,8 +392,9 @@ mod tests {
         );
     }
 
-    /// L_r = −w · mean_B Â·log π(a|o), log π of the diagonal Gaussian written out:
-    /// Σ_i −(a_i − μ_i)² / (2σ_i²) − log σ_i − ½ log 2π, on 3 rows of 2 actions.
+    /// The unit L_r = −mean_B Â·log π(a|o), log π of the diagonal Gaussian written out:
+    /// Σ_i −(a_i − μ_i)² / (2σ_i²) − log σ_i − ½ log 2π, on 3 rows of 2 actions, with
+    /// its gradient; and the scale c = w·|g_v|/|g_r| (|(3, 4)| = 5, |(0, 10)| = 10).
     #[test]
     fn the_policy_gradient_loss_is_the_weighted_log_likelihood() {
         let (s, l) = saver(0.5);
@@ -367,8 +410,8 @@ mod tests {
             actions: Tensor::from_slice(&actions, (3, 2), &dev).unwrap(),
         };
         let t = |v: &[f32]| Tensor::from_slice(v, (3, 2), &dev).unwrap();
-        let x = Tensor::zeros((3, l.pcpn_input_dim()), DType::F32, &dev).unwrap();
-        let (_, pg, _) = env.loss(&l, &x, &t(&mu), &t(&log_std), &rows, 0.5).unwrap();
+        let (pg, dmu, dls) =
+            super::EnvReturn::policy_grads(&l, &t(&mu), &t(&log_std), &rows).unwrap();
         let mut want = 0.0f64;
         for r in 0..3 {
             let mut logp = 0.0f64;
@@ -384,8 +427,30 @@ mod tests {
             }
             want += adv[r] as f64 * logp;
         }
-        want *= -0.5 / 3.0;
+        want *= -1.0 / 3.0;
         assert!((pg as f64 - want).abs() < 1e-5, "{pg} against {want}");
+        // Its gradient: dL/dμ = −Â (a − μ) / (3σ²), dL/dlog σ = −Â ((a − μ)²/σ² − 1) / 3.
+        let (dmu, dls) = (dmu.to_vec2::<f32>().unwrap(), dls.to_vec2::<f32>().unwrap());
+        for r in 0..3 {
+            for j in 0..2 {
+                let (m, ls, a) = (
+                    mu[2 * r + j] as f64,
+                    log_std[2 * r + j] as f64,
+                    actions[2 * r + j] as f64,
+                );
+                let var = (2.0 * ls).exp();
+                let gm = -(adv[r] as f64) * (a - m) / var / 3.0;
+                let gs = -(adv[r] as f64) * ((a - m).powi(2) / var - 1.0) / 3.0;
+                assert!((dmu[r][j] as f64 - gm).abs() < 1e-5, "dμ {r} {j}");
+                assert!((dls[r][j] as f64 - gs).abs() < 1e-5, "dlog σ {r} {j}");
+            }
+        }
+        // The scale: w = 0.5 times the ratio of the norms.
+        let v = Tensor::new(&[[3.0f32, 4.0]], &dev).unwrap();
+        let z = Tensor::zeros((1, 2), DType::F32, &dev).unwrap();
+        let r = Tensor::new(&[[0.0f32, 10.0]], &dev).unwrap();
+        assert_eq!(env.scale([&v, &z], [&r, &z]).unwrap(), 0.25);
+        assert_eq!(env.scale([&v, &z], [&z, &z]).unwrap(), 0.0);
     }
 
     /// Past success (`continue_past_success`) a step that starts inside the success box
@@ -420,6 +485,42 @@ mod tests {
             assert_eq!(&past[2 * k..2 * k + 2], want, "row {k}");
         }
         assert!(inside > 0 && inside < 12, "{inside} of 12 rows inside");
+    }
+
+    /// With the term on, the reference path (candle autograd through the PCPN) takes
+    /// the fast path's step: the same weights after an update to float rounding, and a
+    /// scale c above 0.
+    #[test]
+    fn both_gradient_paths_take_the_same_step_with_the_term() {
+        let (_, l) = saver(0.5);
+        let actions = random_batch(&l, 2, 6, 7, 1.0, vec![false; 12]).actions;
+        let b = batch(&l, |_, i| {
+            -(actions[2 * i].powi(2) + actions[2 * i + 1].powi(2))
+        });
+        let mut out = Vec::new();
+        for path in [GradPath::Fast, GradPath::Reference] {
+            let (mut s, _) = saver(0.5);
+            s.set_grad_path(path);
+            let stats = s.update(&b).unwrap();
+            assert!(stats.get("env_pg_scale").unwrap() > 0.0);
+            let state = s.save_state().unwrap();
+            out.push(
+                state
+                    .tensors
+                    .iter()
+                    .filter(|(n, _)| n.starts_with("agent"))
+                    .map(|(_, t)| t.flatten_all().unwrap().to_vec1::<f32>().unwrap())
+                    .collect::<Vec<_>>(),
+            );
+        }
+        for (x, y) in out[0].iter().zip(&out[1]) {
+            let worst = x
+                .iter()
+                .zip(y)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0f32, f32::max);
+            assert!(worst < 1e-5, "differs by {worst:e}");
+        }
     }
 
     /// The scalar critic and the reward's running mean square survive a checkpoint:

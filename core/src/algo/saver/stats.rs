@@ -56,7 +56,11 @@ impl Saver {
         values.extend(tune_loss.map(|l| ("pcpn_tune_loss", l)));
         values.extend(s.vtrace_stats);
         if self.env.is_some() {
-            values.extend([("env_pg_loss", l.env_pg), ("env_critic_loss", l.env_critic)]);
+            values.extend([
+                ("env_pg_loss", l.env_pg),
+                ("env_pg_scale", l.env_scale),
+                ("env_critic_loss", l.env_critic),
+            ]);
         }
         Ok(UpdateStats { values, per_dim })
     }

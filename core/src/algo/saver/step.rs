@@ -1,14 +1,14 @@
 //! One optimiser step of SAVER's update: the critic's loss, the actor loss and monotonic
 //! penalty through the frozen PCPN (fast path or autograd reference), and the saturation wall.
 
-use super::env_return::EnvRows;
+use super::env_return::{EnvReturn, EnvRows};
 use super::{tau_tensors, Forward, GradPath, Saver};
 use crate::algo::saver_grad::{policy_grads, saver_actor_losses};
 use crate::algo::{check_finite, matrix};
 use crate::config::MU_RAW_LIMIT;
 use crate::rng::uniform01;
 use crate::Result;
-use candle_core::Tensor;
+use candle_core::{Tensor, Var};
 
 /// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim], the sum
 /// over `entries` only unless empty: a wall that keeps a tanh-bounded mean where tanh
@@ -36,12 +36,13 @@ pub(super) struct StepRows<'a> {
 }
 
 /// The agent's loss on some rows: L_a and L_mon, the tensor whose gradient trains the
-/// agent, and (fast path) dL/dμ per row.
+/// agent, (fast path) dL/dμ per row, and when asked d(L_a + L_mon)/d(μ, log σ).
 struct AgentLoss {
     actor: f32,
     mon: f32,
     loss: Tensor,
     dmu: Option<Vec<f32>>,
+    grads: Option<(Tensor, Tensor)>,
 }
 
 /// One optimiser step's loss, checked and not yet applied.
@@ -58,8 +59,9 @@ pub(super) struct Losses {
     pub(super) mon: f32,
     pub(super) critic: f32,
     pub(super) grad_norm: f32,
-    /// The env-return term's L_r and L_V_r (0 where it does not run).
+    /// The env-return term's unit L_r, its scale c and L_V_r (0 where it does not run).
     pub(super) env_pg: f32,
+    pub(super) env_scale: f32,
     pub(super) env_critic: f32,
 }
 
@@ -75,6 +77,7 @@ impl Losses {
             critic: mean(|l| l.critic),
             grad_norm: mean(|l| l.grad_norm),
             env_pg: mean(|l| l.env_pg),
+            env_scale: mean(|l| l.env_scale),
             env_critic: mean(|l| l.env_critic),
         }
     }
@@ -90,28 +93,33 @@ impl Saver {
         let critic_loss =
             ((&f.value - &rows.returns)?.sqr()?.mean_all()? * self.cfg.lambda_critic)?;
         let taus = uniform01(&mut self.rng, d * n * k);
-        let a = self.agent_loss(rows, &taus)?;
-        let mut loss = self.with_penalty((a.loss + &critic_loss)?, &f.raw)?;
-        let (mut env_pg, mut env_critic) = (0.0, 0.0);
-        if let (Some(term), Some(env_rows)) = (&self.env, &rows.env) {
-            let (l, pg, c) = term.loss(
-                &self.layout,
-                &f.x,
-                &f.mu,
-                &f.log_std,
-                env_rows,
-                self.cfg.lambda_critic,
-            )?;
-            loss = (loss + l)?;
-            env_pg = check_finite("env_pg_loss", pg)?;
-            env_critic = check_finite("env_critic_loss", c)?;
-        }
+        let env = self.env.as_ref().zip(rows.env.as_ref());
+        let a = self.agent_loss(rows, &taus, env.is_some())?;
+        let (mut env_pg, mut env_scale, mut env_critic) = (0.0, 0.0, 0.0);
+        let loss = match (env, &a.grads) {
+            (Some((term, env_rows)), Some((g_mu, g_ls))) => {
+                // The env term's push on μ and log σ, scaled to w times the PCPN's.
+                let (pg, e_mu, e_ls) =
+                    EnvReturn::policy_grads(&self.layout, &f.mu, &f.log_std, env_rows)?;
+                let c = term.scale([g_mu, g_ls], [&e_mu, &e_ls])?;
+                let push = ((&f.mu * (e_mu * c as f64)?)?.sum_all()?
+                    + (&f.log_std * (e_ls * c as f64)?)?.sum_all()?)?;
+                let v_r = term.critic_loss(&f.x, env_rows, self.cfg.lambda_critic)?;
+                env_pg = check_finite("env_pg_loss", pg)?;
+                env_scale = check_finite("env_pg_scale", c)?;
+                env_critic = check_finite("env_critic_loss", v_r.to_scalar::<f32>()?)?;
+                let agent = ((a.loss + push)? + v_r)?;
+                self.with_penalty((agent + &critic_loss)?, &f.raw)?
+            }
+            _ => self.with_penalty((a.loss + &critic_loss)?, &f.raw)?,
+        };
         let losses = Losses {
             actor: check_finite("actor_loss", a.actor)?,
             mon: check_finite("mon_loss", a.mon)?,
             critic: check_finite("critic_loss", critic_loss.to_scalar::<f32>()?)?,
             grad_norm: 0.0,
             env_pg,
+            env_scale,
             env_critic,
         };
         Ok(StepLoss {
@@ -135,8 +143,10 @@ impl Saver {
         ))
     }
 
-    /// SAVER's actor loss and monotonic penalty on `rows` with τ `taus` [d·N·K].
-    fn agent_loss(&self, rows: &StepRows, taus: &[f32]) -> Result<AgentLoss> {
+    /// SAVER's actor loss and monotonic penalty on `rows` with τ `taus` [d·N·K]; with
+    /// `want_grads` also their gradient with respect to μ and log σ (the reference path
+    /// then trains through that gradient as the fast path does, the same step).
+    fn agent_loss(&self, rows: &StepRows, taus: &[f32], want_grads: bool) -> Result<AgentLoss> {
         let f = rows.fwd;
         let (b, d, k) = (f.obs.dim(0)?, self.layout.aligned_dim, self.cfg.quantiles);
         match self.path {
@@ -148,32 +158,68 @@ impl Saver {
                     .input_grad(&f.x, rows.target, rows.adv, taus, &self.cfg)?;
                 let (dmu, dls) = policy_grads(&g.dx, self.layout.obs_dim, self.layout.mu_dim())?;
                 let dmu_host = dmu.flatten_all()?.to_vec1::<f32>()?;
-                let loss = ((&f.mu * dmu)?.sum_all()? + (&f.log_std * dls)?.sum_all()?)?;
+                let loss = ((&f.mu * &dmu)?.sum_all()? + (&f.log_std * &dls)?.sum_all()?)?;
                 Ok(AgentLoss {
                     actor: g.actor_loss,
                     mon: g.mon_loss,
                     loss,
                     dmu: Some(dmu_host),
+                    grads: want_grads.then_some((dmu, dls)),
                 })
             }
             GradPath::Reference => {
                 let (tau, cos) = tau_tensors(taus, d, b, k, &self.dev)?;
+                // With `want_grads` the losses run on detached copies of μ and log σ,
+                // and their gradient there carries them into the agent.
+                let leaves = if want_grads {
+                    Some((
+                        Var::from_tensor(&f.mu.detach())?,
+                        Var::from_tensor(&f.log_std.detach())?,
+                    ))
+                } else {
+                    None
+                };
+                let (mu, log_std) = match &leaves {
+                    Some((m, s)) => (m.as_tensor(), s.as_tensor()),
+                    None => (&f.mu, &f.log_std),
+                };
                 let l = saver_actor_losses(
                     self.pcpn.pcpn(),
                     &f.obs,
-                    &f.mu,
-                    &f.log_std,
+                    mu,
+                    log_std,
                     &matrix(rows.target, b, d, &self.dev)?,
                     &Tensor::from_slice(rows.adv, (b, d), &self.dev)?,
                     &tau,
                     &cos,
                     &self.cfg,
                 )?;
+                let (actor, mon) = (l.actor.to_scalar::<f32>()?, l.mon.to_scalar::<f32>()?);
+                let total = (l.actor + l.mon)?;
+                let Some((m, s)) = leaves else {
+                    return Ok(AgentLoss {
+                        actor,
+                        mon,
+                        loss: total,
+                        dmu: None,
+                        grads: None,
+                    });
+                };
+                let g = total.backward()?;
+                let grad = |v: &Var| -> Result<Tensor> {
+                    Ok(match g.get(v.as_tensor()) {
+                        Some(t) => t.clone(),
+                        None => v.as_tensor().zeros_like()?,
+                    })
+                };
+                let (g_mu, g_ls) = (grad(&m)?, grad(&s)?);
+                let loss = ((&f.mu * &g_mu)?.sum_all()? + (&f.log_std * &g_ls)?.sum_all()?)?;
                 Ok(AgentLoss {
-                    actor: l.actor.to_scalar::<f32>()?,
-                    mon: l.mon.to_scalar::<f32>()?,
-                    loss: (l.actor + l.mon)?,
+                    actor,
+                    mon,
+                    loss,
                     dmu: None,
+                    grads: Some((g_mu, g_ls)),
                 })
             }
         }
