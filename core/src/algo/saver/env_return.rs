@@ -28,6 +28,14 @@ use crate::Result;
 use candle_core::{Device, Tensor, Var};
 use std::cell::Cell;
 
+/// The gradient `grads` holds for the leaf `v` (zeros where nothing reached it).
+pub(super) fn leaf_grad(grads: &candle_core::backprop::GradStore, v: &Var) -> Result<Tensor> {
+    Ok(match grads.get(v.as_tensor()) {
+        Some(g) => g.clone(),
+        None => v.as_tensor().zeros_like()?,
+    })
+}
+
 /// The name of the running mean square of the env reward in a checkpoint.
 const MEAN_SQUARE: &str = "env_critic.reward_mean_square";
 /// Weight of a batch in the running mean square of the env reward.
@@ -178,13 +186,8 @@ impl EnvReturn {
         let log_pi = gaussian_log_prob(layout, mu.as_tensor(), log_std.as_tensor(), &rows.actions)?;
         let loss = ((&rows.adv * log_pi)?.mean_all()? * -1.0)?;
         let grads = loss.backward()?;
-        let grad = |v: &Var| -> Result<Tensor> {
-            Ok(match grads.get(v.as_tensor()) {
-                Some(g) => g.clone(),
-                None => v.as_tensor().zeros_like()?,
-            })
-        };
-        Ok((loss.to_scalar::<f32>()?, grad(&mu)?, grad(&log_std)?))
+        let (g_mu, g_ls) = (leaf_grad(&grads, &mu)?, leaf_grad(&grads, &log_std)?);
+        Ok((loss.to_scalar::<f32>()?, g_mu, g_ls))
     }
 
     /// The scale c of the unit policy gradient (g_r) beside the vector term's (g_v),

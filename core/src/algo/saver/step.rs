@@ -1,7 +1,7 @@
 //! One optimiser step of SAVER's update: the critic's loss, the actor loss and monotonic
 //! penalty through the frozen PCPN (fast path or autograd reference), and the saturation wall.
 
-use super::env_return::{EnvReturn, EnvRows};
+use super::env_return::{leaf_grad, EnvReturn, EnvRows};
 use super::{tau_tensors, Forward, GradPath, Saver};
 use crate::algo::saver_grad::{policy_grads, saver_actor_losses};
 use crate::algo::{check_finite, matrix};
@@ -206,13 +206,7 @@ impl Saver {
                     });
                 };
                 let g = total.backward()?;
-                let grad = |v: &Var| -> Result<Tensor> {
-                    Ok(match g.get(v.as_tensor()) {
-                        Some(t) => t.clone(),
-                        None => v.as_tensor().zeros_like()?,
-                    })
-                };
-                let (g_mu, g_ls) = (grad(&m)?, grad(&s)?);
+                let (g_mu, g_ls) = (leaf_grad(&g, &m)?, leaf_grad(&g, &s)?);
                 let loss = ((&f.mu * &g_mu)?.sum_all()? + (&f.log_std * &g_ls)?.sum_all()?)?;
                 Ok(AgentLoss {
                     actor,
