@@ -10,7 +10,7 @@ pub use angle::Angle;
 pub use arm::{hand, wrap_angle, Arm};
 pub use bandit::{bandit_reward, Bandit};
 pub use point::Point;
-pub use preset::{Preset, Routing, PRESETS};
+pub use preset::{dim_help, Preset, Routing, PRESETS};
 pub use select::Select;
 pub use spec::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
 pub use success::SuccessRule;

@@ -77,6 +77,25 @@ const fn cube(d: usize, continuous: usize, choices: usize) -> EnvLayout {
 
 /// Positions stay in the cube; a step moves each coordinate by at most 0.1 (angle:
 /// 0.1·|sin φ|, 0.1·|cos φ|; select: 0.1 on one coordinate; point: 0.1 on each).
+/// The `--dim` help, built from the table: each preset's dimensions (probed through
+/// its `bad_dim` over 1..=8: one value, "even" or "any") and its default.
+pub fn dim_help() -> String {
+    let parts: Vec<String> = PRESETS
+        .iter()
+        .map(|p| {
+            let ok: Vec<usize> = (1..=8).filter(|&d| (p.bad_dim)(d).is_none()).collect();
+            let dims = match ok.as_slice() {
+                [one] => one.to_string(),
+                all if all.len() == 8 => "any".into(),
+                [2, 4, 6, 8] => "even".into(),
+                other => format!("{other:?} up to 8"),
+            };
+            format!("{}: {dims}, default {}", p.name, p.default_dim)
+        })
+        .collect();
+    format!("State dimension d ({})", parts.join("; "))
+}
+
 fn cube_bounds(d: usize) -> EnvBounds {
     EnvBounds {
         obs_low: vec![-1.0; d],
@@ -207,6 +226,21 @@ mod tests {
     /// Each row sits at its kind's index, its name parses back to its kind, and its
     /// default dimension is valid, with a layout and bounds of matching sizes and a
     /// routing that fits the layout.
+    #[test]
+    fn the_dim_help_names_every_preset_from_the_table() {
+        let help = dim_help();
+        for p in PRESETS {
+            assert!(
+                help.contains(&format!("{}: ", p.name)),
+                "{} missing: {help}",
+                p.name
+            );
+        }
+        assert!(help.contains("angle: even, default 4"), "{help}");
+        assert!(help.contains("select: any, default 4"), "{help}");
+        assert!(help.contains("arm: 2, default 2"), "{help}");
+    }
+
     #[test]
     fn every_row_is_its_kinds_and_consistent() {
         for (i, p) in PRESETS.iter().enumerate() {

@@ -34,8 +34,8 @@ pub struct EnvSettings {
     /// Environment preset [default: angle]
     #[arg(id = "env", long = "env", value_name = "ENV", value_enum)]
     pub kind: Option<EnvKind>,
-    /// State dimension d (angle: even; select: any; arm: 2) [default: 4; arm 2]
-    #[arg(long)]
+    /// State dimension d: the help lists every preset's (from the table).
+    #[arg(long, help = crate::env::dim_help())]
     pub dim: Option<usize>,
     /// A custom env's name (config files only; with `layout` and `bounds`).
     #[arg(skip)]
