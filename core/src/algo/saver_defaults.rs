@@ -109,8 +109,9 @@ pub const CUSTOM_SAVER_MINIBATCH_SIZE: usize = 128;
 /// The weight of SAVER's env-return term on a custom env (docs/ALGORITHM.md §7.2): its
 /// push on μ and log σ as large as the PCPN term's. The progress reward does not see
 /// what else the env's reward counts (Reacher-v5's control cost). On Reacher-v5 (1 M
-/// steps, seed 0) the whole episode's return went from −14.2 to −12.0 and the return up
-/// to success from −9.3 to −6.3, at success 1.00, 0.9 success reached at 400 k steps;
+/// steps, 5 seeds) the whole episode's return went from −14.2 / −13.3 (off, seeds 0-1)
+/// to −11.0 … −12.2 and the return up to success from −9.3 / −7.2 to −6.3 … −6.8, at
+/// success 1.00 on every seed, 0.9 success reached at 300-500 k steps;
 /// on the point mass (300 k, seeds 0-2, one PCPN) success stayed 1.00 on every seed at
 /// −13.8 against −13.9 (results/env-return/). A fixed weight (0.3) instead took
 /// Reacher's return further (−7.7) but handed the update to the env term and broke the
