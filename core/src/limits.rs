@@ -9,6 +9,10 @@ use crate::rollout::Rollout;
 use crate::{CoreError, Result};
 use std::sync::Arc;
 
+/// The largest env reward a rollout may carry for one step (its square and its sums
+/// over an episode stay far inside f32).
+pub const MAX_ENV_REWARD: f32 = 1e9;
+
 /// The ranges of one run's rollouts.
 #[derive(Clone, Debug)]
 pub struct RolloutLimits {
@@ -61,6 +65,14 @@ impl RolloutLimits {
                     format!("+-{} (the env's largest step)", self.env.max_change),
                 );
             }
+        }
+        if let Some(i) = r.env_reward.iter().position(|x| x.abs() > MAX_ENV_REWARD) {
+            return out(
+                "env_reward",
+                i,
+                r.env_reward[i],
+                format!("+-{MAX_ENV_REWARD:e} (the largest env reward a step may carry)"),
+            );
         }
         self.policy
             .check(&r.payload, &r.actions, r.n_envs * r.n_steps)
@@ -115,9 +127,17 @@ mod tests {
         let limits = limits_of(&config);
         let good = one_step();
         limits.check(&good).unwrap();
+        limits
+            .check(&Rollout {
+                env_reward: vec![-1e9],
+                ..good.clone()
+            })
+            .unwrap();
         type Break = fn(&mut Rollout);
-        let cases: [(Break, &str); 8] = [
+        let cases: [(Break, &str); 9] = [
             (|r| r.obs[2] = 1e10, "obs[2]"),
+            // The env's own reward, where sent: any sign and size up to 1e9 a step.
+            (|r| r.env_reward = vec![-2e9], "env_reward[0]"),
             (|r| r.obs[1] = -1.01, "obs[1]"),
             (|r| r.vector_reward[1] = 1e18, "vector_reward[1]"),
             (|r| r.state_delta[0] = -0.11, "state_delta[0]"),

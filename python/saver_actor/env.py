@@ -26,7 +26,7 @@ class EnvError(ValueError):
     """An environment does not do what its declaration says."""
 
 
-# The largest env reward per step a learner takes (core/src/rollout.rs MAX_ENV_REWARD).
+# The largest env reward per step a learner takes (core/src/limits.rs MAX_ENV_REWARD).
 MAX_ENV_REWARD = 1e9
 
 

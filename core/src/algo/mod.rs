@@ -422,6 +422,35 @@ pub(crate) fn batch_gae(
     Ok((adv, returns))
 }
 
+/// The advantages and critic targets of `rewards` ([B, c]) by λ: GAE(λ) below 1, and
+/// at λ = 1 the n-step recursion itself (GAE(1) is the same sum in another order,
+/// equal only to rounding), A = R − V; `values` V(o_t) of the B steps on the host,
+/// `v_all` V at [`update_rows`]' rows (`n_ends` timeouts at their end).
+pub(crate) fn lambda_targets(
+    batch: &crate::rollout::Batch,
+    rewards: &[f32],
+    values: &[f32],
+    v_all: &Tensor,
+    n_ends: usize,
+    gamma: f32,
+    lambda: f32,
+) -> Result<(Vec<f32>, Vec<f32>)> {
+    if lambda < 1.0 {
+        return batch_gae(batch, rewards, values, v_all, n_ends, gamma, lambda);
+    }
+    let c = rewards.len() / batch.len().max(1);
+    let r = batch_returns(batch, rewards, v_all, n_ends, c, gamma)?;
+    let adv = r.iter().zip(values).map(|(r, v)| r - v).collect();
+    Ok((adv, r))
+}
+
+/// The rows `idx` of `data` ([rows, w], row-major), in that order: a minibatch's.
+pub(crate) fn gather_rows(data: &[f32], idx: &[usize], w: usize) -> Vec<f32> {
+    idx.iter()
+        .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
+        .collect()
+}
+
 /// The width of a step's payload under the Gaussian behaviour policy that acted (its μ
 /// then its log σ), once the batch is checked to hold exactly that a step.
 pub(crate) fn behaviour_payload_width(

@@ -343,11 +343,7 @@ impl Ppo {
     /// The minibatch of steps `idx`.
     fn minibatch(&self, idx: &[usize], batch: &Batch, host: &Host) -> Minibatch {
         let (o, a, c) = (self.layout.obs_dim, self.layout.action_dim(), self.c);
-        let rows = |data: &[f32], w: usize| -> Vec<f32> {
-            idx.iter()
-                .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
-                .collect()
-        };
+        let rows = |data: &[f32], w: usize| super::gather_rows(data, idx, w);
         let n = idx.len();
         let mut adv = rows(&host.advantage, 1);
         if self.cfg.adv_norm {

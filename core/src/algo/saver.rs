@@ -196,14 +196,18 @@ impl Saver {
     pub fn pcpn(&self) -> &Pcpn {
         self.pcpn.pcpn()
     }
+}
 
-    /// The networks a checkpoint holds: agent, vector critic and, with the env-return
-    /// term, its critic.
-    fn nets(&self) -> Vec<&crate::nets::ParamSet> {
-        let mut nets = vec![self.agent.params(), self.critic.params()];
-        nets.extend(self.env.as_ref().map(EnvReturn::params));
-        nets
-    }
+/// The networks a checkpoint holds: agent, vector critic and, with the env-return term,
+/// its critic (fields apart, so that restoring may borrow the optimiser mutably).
+fn nets<'a>(
+    agent: &'a Agent,
+    critic: &'a Critic,
+    env: Option<&'a EnvReturn>,
+) -> Vec<&'a crate::nets::ParamSet> {
+    let mut nets = vec![agent.params(), critic.params()];
+    nets.extend(env.map(EnvReturn::params));
+    nets
 }
 
 /// Agent and critic over some rows, in the graph.
@@ -428,7 +432,8 @@ impl Algorithm for Saver {
     }
 
     fn save_state(&self) -> Result<super::AlgoState> {
-        let mut state = super::nets_state(&self.nets(), &self.opt, Some(&self.rng))?;
+        let nets = nets(&self.agent, &self.critic, self.env.as_ref());
+        let mut state = super::nets_state(&nets, &self.opt, Some(&self.rng))?;
         if let Some(t) = &self.tuner {
             t.save(&mut state)?;
         }
@@ -443,8 +448,7 @@ impl Algorithm for Saver {
         get: &dyn Fn(&str) -> Option<Tensor>,
         numbers: &std::collections::BTreeMap<String, u128>,
     ) -> Result<()> {
-        let mut nets = vec![self.agent.params(), self.critic.params()];
-        nets.extend(self.env.as_ref().map(EnvReturn::params));
+        let nets = nets(&self.agent, &self.critic, self.env.as_ref());
         super::restore_nets(&nets, &mut self.opt, Some(&mut self.rng), get, numbers)?;
         if let Some(e) = &self.env {
             e.restore(get)?;

@@ -17,7 +17,7 @@
 //! env reward is the sum of its progress reward (it would count that signal twice) or
 //! that carries none (the presets).
 
-use crate::algo::{batch_gae, batch_returns, matrix};
+use crate::algo::{gather_rows, lambda_targets, matrix};
 use crate::config::RunConfig;
 use crate::env::EnvLayout;
 use crate::nets::{gaussian_log_prob, Critic, ParamSet};
@@ -138,12 +138,8 @@ impl EnvReturn {
         let rewards: Vec<f32> = batch.env_reward.iter().map(|r| r / scale).collect();
         let v_all = v_all.detach();
         let values: Vec<f32> = v_all.narrow(0, 0, b)?.flatten_all()?.to_vec1()?;
-        let (mut advantages, returns) = if lambda < 1.0 {
-            batch_gae(batch, &rewards, &values, &v_all, n_ends, gamma, lambda)?
-        } else {
-            let r = batch_returns(batch, &rewards, &v_all, n_ends, 1, gamma)?;
-            (r.iter().zip(&values).map(|(r, v)| r - v).collect(), r)
-        };
+        let (mut advantages, returns) =
+            lambda_targets(batch, &rewards, &values, &v_all, n_ends, gamma, lambda)?;
         normalize_advantages(&mut advantages, 1, false);
         Ok(EnvTargets {
             returns,
@@ -218,13 +214,7 @@ impl EnvReturn {
         dev: &Device,
     ) -> Result<EnvRows> {
         let pick = |data: &[f32], w: usize| -> Vec<f32> {
-            match idx {
-                None => data.to_vec(),
-                Some(idx) => idx
-                    .iter()
-                    .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
-                    .collect(),
-            }
+            idx.map_or_else(|| data.to_vec(), |idx| gather_rows(data, idx, w))
         };
         let n = idx.map_or(batch.len(), <[usize]>::len);
         Ok(EnvRows {

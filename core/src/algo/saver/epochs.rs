@@ -8,7 +8,7 @@
 //! from the one that acted (approximate KL), as PPO's early stop.
 
 use super::{EnvReturn, Losses, Saver, StepRows};
-use crate::algo::{Algorithm, UpdateStats};
+use crate::algo::{gather_rows, Algorithm, UpdateStats};
 use crate::rollout::Batch;
 use crate::Result;
 use candle_core::Tensor;
@@ -59,11 +59,7 @@ impl Saver {
             for j in 0..m {
                 // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
                 let idx = &order[j * b / m..(j + 1) * b / m];
-                let rows = |data: &[f32], w: usize| -> Vec<f32> {
-                    idx.iter()
-                        .flat_map(|&i| data[i * w..(i + 1) * w].iter().copied())
-                        .collect()
-                };
+                let rows = |data: &[f32], w: usize| gather_rows(data, idx, w);
                 let n = idx.len();
                 let fwd =
                     self.forward(Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?)?;

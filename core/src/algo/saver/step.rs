@@ -96,7 +96,7 @@ impl Saver {
         let env = self.env.as_ref().zip(rows.env.as_ref());
         let a = self.agent_loss(rows, &taus, env.is_some())?;
         let (mut env_pg, mut env_scale, mut env_critic) = (0.0, 0.0, 0.0);
-        let loss = match (env, &a.grads) {
+        let agent = match (env, &a.grads) {
             (Some((term, env_rows)), Some((g_mu, g_ls))) => {
                 // The env term's push on μ and log σ, scaled to w times the PCPN's.
                 let (pg, e_mu, e_ls) =
@@ -108,11 +108,11 @@ impl Saver {
                 env_pg = check_finite("env_pg_loss", pg)?;
                 env_scale = check_finite("env_pg_scale", c)?;
                 env_critic = check_finite("env_critic_loss", v_r.to_scalar::<f32>()?)?;
-                let agent = ((a.loss + push)? + v_r)?;
-                self.with_penalty((agent + &critic_loss)?, &f.raw)?
+                ((a.loss + push)? + v_r)?
             }
-            _ => self.with_penalty((a.loss + &critic_loss)?, &f.raw)?,
+            _ => a.loss,
         };
+        let loss = self.with_penalty((agent + &critic_loss)?, &f.raw)?;
         let losses = Losses {
             actor: check_finite("actor_loss", a.actor)?,
             mon: check_finite("mon_loss", a.mon)?,

@@ -5,7 +5,7 @@
 
 use super::{Forward, Saver};
 use crate::algo::vtrace::{coordinate_log_ratios, shared_log_ratios};
-use crate::algo::{batch_gae, batch_returns, matrix};
+use crate::algo::{lambda_targets, matrix};
 use crate::env::Routing;
 use crate::nets::gaussian_log_prob;
 use crate::rollout::Batch;
@@ -34,11 +34,6 @@ impl Saver {
         n_ends: usize,
     ) -> Result<Targets> {
         let (b, d) = (batch.len(), self.layout.aligned_dim);
-        let plain = |returns: Vec<f32>, advantages| Targets {
-            returns,
-            advantages,
-            vtrace_stats: Vec::new(),
-        };
         if let Some(vt) = self.vtrace {
             // Each coordinate weighs its step by the part of the action that moves it,
             // where the env says which part that is (§16); else one ratio a step.
@@ -67,19 +62,20 @@ impl Saver {
                 vtrace_stats: corrected.stats,
             });
         }
-        let rewards = &batch.vector_reward;
-        if self.cfg.gae_lambda < 1.0 {
-            let lambda = self.cfg.gae_lambda as f32;
-            let (adv, r) = batch_gae(
-                batch, rewards, value_host, v_all, n_ends, self.gamma, lambda,
-            )?;
-            return Ok(plain(r, adv));
-        }
-        // λ = 1 keeps the n-step recursion itself (GAE(1) is the same sum in another
-        // order, equal only to rounding).
-        let r = batch_returns(batch, rewards, v_all, n_ends, d, self.gamma)?;
-        let adv = r.iter().zip(value_host).map(|(r, v)| r - v).collect();
-        Ok(plain(r, adv))
+        let (advantages, returns) = lambda_targets(
+            batch,
+            &batch.vector_reward,
+            value_host,
+            v_all,
+            n_ends,
+            self.gamma,
+            self.cfg.gae_lambda as f32,
+        )?;
+        Ok(Targets {
+            returns,
+            advantages,
+            vtrace_stats: Vec::new(),
+        })
     }
 }
 
