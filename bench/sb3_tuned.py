@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 import torch
+from saver_actor.evaluate import scored_episodes
 from saver_actor.examples import reacher
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
@@ -40,30 +41,13 @@ make_env, decl = reacher()
 
 
 def evaluate(model, norm):
-    """Deterministic episodes (seeds 0..episodes-1): success rate, mean return up to
-    success and mean env return over the whole episode."""
-    env = make_env()
-    to_success, whole, successes = [], [], 0
-    for ep in range(opts.episodes):
-        o, _ = env.reset(seed=ep)
-        total, full, success = 0.0, 0.0, False
-        while True:
-            x = norm.normalize_obs(np.asarray(o)[None]) if norm is not None else np.asarray(o)[None]
-            a, _ = model.predict(x, deterministic=True)
-            prev = o
-            o, r, term, trunc, info = env.step(np.clip(a[0], -1.0, 1.0))
-            full += float(r)
-            if not success:
-                total += float(r)
-                success = bool(decl.outcome(np.asarray(prev)[None], np.asarray(o)[None], [r], [term], [info],
-                                            check=False)[2][0])
-            if term or trunc:
-                break
-        successes += success
-        to_success.append(total)
-        whole.append(full)
-    return {"success": successes / opts.episodes, "return": float(np.mean(to_success)),
-            "env_return": float(np.mean(whole))}
+    """Deterministic episodes (seeds 0..episodes-1) scored as SAVER's runs are
+    (saver_actor.evaluate.scored_episodes), through VecNormalize's observation scaling."""
+    def act(o):
+        x = norm.normalize_obs(o[None]) if norm is not None else o[None]
+        return model.predict(x, deterministic=True)[0][0]
+    r = scored_episodes(make_env, decl, act, opts.episodes, 50)
+    return {"success": r["success"], "return": r["return"], "env_return": r["env_return"]}
 
 
 class Every(BaseCallback):

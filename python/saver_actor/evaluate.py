@@ -16,6 +16,7 @@ import time
 from typing import Callable, Optional
 
 import grpc
+import numpy as np
 
 from ._proto import saver_pb2 as pb
 from ._proto import saver_pb2_grpc as pb_grpc
@@ -23,6 +24,44 @@ from .actor import Connection
 from .enjoy import enjoy
 from .env import EnvDecl
 from .policy import Policy
+
+
+def scored_episodes(make_env: Callable, decl: EnvDecl, act: Callable[[np.ndarray], np.ndarray], episodes: int = 50,
+                    max_steps: int = 1000) -> dict:
+    """Episodes (env seeds 0..episodes-1) of `act` (an observation -> the agent's action,
+    before `decl.env_actions`): mean return (the env's own reward) up to success, success
+    rate, mean L1 distance |p - g| where the episode ended (at success or its last step),
+    and mean "env_return": the env's own return over the whole episode, which goes on
+    past success until the env ends it or max_steps (Reacher-v5's 50 steps: the return
+    its peers report). Shared by the tests and the benchmarks, for our policies and
+    other libraries' alike."""
+    env = make_env()
+    returns, full, successes, dist = [], [], 0, []
+    for ep in range(episodes):
+        o, _ = env.reset(seed=ep)
+        total, whole, success, end = 0.0, 0.0, False, None
+        for _ in range(max_steps):
+            a = act(np.asarray(o, dtype=np.float32))
+            prev = o
+            o, r, term, trunc, info = env.step(decl.env_actions(np.asarray(a)[None], env.action_space)[0])
+            whole += float(r)
+            if end is None:
+                total += float(r)
+                success = bool(decl.outcome(np.asarray(prev)[None], np.asarray(o)[None], [r], [term], [info],
+                                            check=False)[2][0])
+                if success:
+                    end = o
+            if term or trunc:
+                break
+        successes += success
+        end = o if end is None else end
+        g = 0.0 if decl.goal is None else np.asarray(end)[decl.goal]
+        dist.append(float(np.abs(np.asarray(end)[decl.aligned] - g).sum()))
+        returns.append(total)
+        full.append(whole)
+    env.close()
+    return {"return": float(np.mean(returns)), "success": successes / episodes, "distance": float(np.mean(dist)),
+            "env_return": float(np.mean(full))}
 
 
 def keep_best(make_env: Callable, decl: EnvDecl, conn: Connection, out: str, every: float = 60.0,

@@ -668,38 +668,12 @@ def test_a_discrete_action_env_trains():
 
 
 def evaluate(tensors, settings, make_env, decl, max_steps, episodes=50):
-    """Deterministic episodes (seeds 0..episodes-1) of a policy on a custom env: mean
-    return (the env's own reward) up to success, success rate, mean L1 distance |p - g|
-    where the episode ended (at success or the last step), and mean "env_return": the
-    env's own return over the whole episode, which goes on past success until the env
-    ends it or max_steps (Reacher-v5's 50 steps: the return its peers report)."""
-    env = make_env()
+    """Deterministic episodes (seeds 0..episodes-1) of a policy on a custom env, scored by
+    saver_actor.evaluate.scored_episodes (return up to success, success rate, distance,
+    and the whole episode's env_return)."""
+    from saver_actor.evaluate import scored_episodes
     policy = policy_for(settings.policy.family, tensors, settings.env.layout, dict(settings.policy.params))
-    returns, full, successes, dist = [], [], 0, []
-    for ep in range(episodes):
-        o, _ = env.reset(seed=ep)
-        total, whole, success, end = 0.0, 0.0, False, None
-        for _ in range(max_steps):
-            a = policy.deterministic(np.asarray(o, dtype=np.float32)[None])
-            prev = o
-            o, r, term, trunc, info = env.step(decl.env_actions(a, env.action_space)[0])
-            whole += float(r)
-            if end is None:
-                total += float(r)
-                success = bool(decl.outcome(np.asarray(prev)[None], np.asarray(o)[None], [r], [term], [info],
-                                            check=False)[2][0])
-                if success:
-                    end = o
-            if term or trunc:
-                break
-        successes += success
-        end = o if end is None else end
-        g = 0.0 if decl.goal is None else np.asarray(end)[decl.goal]
-        dist.append(float(np.abs(np.asarray(end)[decl.aligned] - g).sum()))
-        returns.append(total)
-        full.append(whole)
-    return {"return": float(np.mean(returns)), "success": successes / episodes, "distance": float(np.mean(dist)),
-            "env_return": float(np.mean(full))}
+    return scored_episodes(make_env, decl, lambda o: policy.deterministic(o[None])[0], episodes, max_steps)
 
 
 def final_distance(tensors, settings):
