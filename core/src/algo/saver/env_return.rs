@@ -363,8 +363,8 @@ mod tests {
             .to_vec1()
             .unwrap();
         let mut want = vec![0f32; 12];
-        for e in 0..2 {
-            let mut next = boot[e];
+        for (e, &b0) in boot.iter().enumerate() {
+            let mut next = b0;
             for k in (0..6).rev() {
                 let i = e * 6 + k;
                 if b.done[i] {
