@@ -6,12 +6,13 @@
 //! `θ ← θ − lr_t·m/(√v + ε̂)`.
 
 mod host;
+mod host_math;
 
 use crate::{CoreError, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
-pub(crate) use host::join_if;
-use host::to_host;
 pub use host::HostState;
+pub(crate) use host_math::join_if;
+use host_math::to_host;
 use serde::{Deserialize, Serialize};
 
 /// Which optimiser, with its constants.
@@ -92,7 +93,7 @@ pub struct Optimizer {
     decay_over: Option<u64>,
     /// Step on the host in one pass per variable (every variable on the CPU) instead of
     /// a dozen tensor ops; the same f32 arithmetic, so the same bits, but for slots
-    /// flushed below f32's smallest normal ([`host::flush_subnormal`]).
+    /// flushed below f32's smallest normal ([`host_math::flush_subnormal`]).
     host: bool,
 }
 
@@ -161,7 +162,7 @@ impl Optimizer {
         for (_, v) in &self.vars {
             if let Some(g) = grads.get(v.as_tensor()) {
                 if g.device().is_cpu() {
-                    sq += host::sum_sq(&to_host(g)?);
+                    sq += host_math::sum_sq(&to_host(g)?);
                     continue;
                 }
                 sq += g
@@ -417,9 +418,9 @@ mod tests {
     #[test]
     fn the_sum_of_squares_takes_every_element() {
         let x: Vec<f32> = (0..20).map(|i| i as f32 * 0.5).collect();
-        assert_eq!(host::sum_sq(&x), 617.5);
-        assert_eq!(host::sum_sq(&x[..7]), 0.25 * 91.0); // Σ i² for i < 7 = 91: tail only
-        assert_eq!(host::sum_sq(&[]), 0.0);
+        assert_eq!(host_math::sum_sq(&x), 617.5);
+        assert_eq!(host_math::sum_sq(&x[..7]), 0.25 * 91.0); // Σ i² for i < 7 = 91: tail only
+        assert_eq!(host_math::sum_sq(&[]), 0.0);
     }
 
     /// The one-pass host step and the tensor ops give the same bits: a 3x5 weight and

@@ -342,6 +342,16 @@ impl Hub {
         Self::count_pending(&s)
     }
 
+    /// The counts the Prometheus gauges show at an update.
+    pub fn counts(&self) -> crate::metrics::HubCounts {
+        crate::metrics::HubCounts {
+            streaming: self.actors().len(),
+            pending: self.pending(),
+            accepted: self.stats.accepted.load(Ordering::Relaxed),
+            rejected: self.stats.rejected.load(Ordering::Relaxed),
+        }
+    }
+
     fn count_pending(s: &State) -> usize {
         s.actors.values().filter(|a| !a.attached).count()
     }

@@ -95,22 +95,33 @@ impl EpisodeWindow {
     }
 }
 
+/// The hub's counts at an update, for the gauges ([`export`]); the hub fills it
+/// (`Hub::counts`), so that metrics reads values, not the hub.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct HubCounts {
+    /// Actors streaming rollouts.
+    pub streaming: usize,
+    /// Actors registered and waiting for their first weights.
+    pub pending: usize,
+    /// Rollouts accepted so far.
+    pub accepted: u64,
+    /// Rollouts refused so far.
+    pub rejected: u64,
+}
+
 /// Sets the Prometheus gauges of one update (`scalars`: the update's TensorBoard
 /// scalars) and of the hub (actors streaming and waiting, rollouts accepted and
 /// refused).
-pub fn export(scalars: &[(&'static str, f32)], row: &MetricsRow, hub: &crate::Hub) {
-    use std::sync::atomic::Ordering;
+pub fn export(scalars: &[(&'static str, f32)], row: &MetricsRow, hub: HubCounts) {
     ::metrics::gauge!("saver_steps").set(row.steps as f64);
     ::metrics::gauge!("saver_version").set(row.updates as f64);
     for &(name, value) in scalars {
         ::metrics::gauge!("saver_update_value", "name" => name).set(value as f64);
     }
-    ::metrics::gauge!("saver_actors_streaming").set(hub.actors().len() as f64);
-    ::metrics::gauge!("saver_actors_pending").set(hub.pending() as f64);
-    let accepted = hub.stats.accepted.load(Ordering::Relaxed);
-    ::metrics::gauge!("saver_rollouts_accepted").set(accepted as f64);
-    ::metrics::gauge!("saver_rollouts_rejected")
-        .set(hub.stats.rejected.load(Ordering::Relaxed) as f64);
+    ::metrics::gauge!("saver_actors_streaming").set(hub.streaming as f64);
+    ::metrics::gauge!("saver_actors_pending").set(hub.pending as f64);
+    ::metrics::gauge!("saver_rollouts_accepted").set(hub.accepted as f64);
+    ::metrics::gauge!("saver_rollouts_rejected").set(hub.rejected as f64);
 }
 
 /// One row of metrics.csv.

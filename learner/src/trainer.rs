@@ -266,7 +266,7 @@ impl Trainer {
                 events
                     .write(row.steps, &scalars)
                     .map_err(|e| io("writing the TensorBoard events", e))?;
-                crate::metrics::export(&scalars, &row, &self.hub);
+                crate::metrics::export(&scalars, &row, self.hub.counts());
                 if let Some(tx) = &opts.rows {
                     let _ = tx.send(row);
                 }

@@ -23,6 +23,7 @@ use crate::rollout::Batch;
 use crate::{checkpoint, Result};
 use candle_core::backprop::GradStore;
 use candle_core::{Device, Tensor};
+use minibatch::{Minibatch, Totals};
 use rand::seq::SliceRandom;
 use saver_proto::NamedTensor;
 
@@ -131,36 +132,6 @@ fn build_ppo(
     dev: &Device,
 ) -> Result<Box<dyn Algorithm>> {
     Ok(Box::new(Ppo::new(config, dev)?))
-}
-
-/// One minibatch's rows, gathered from the batch (row-major on the host).
-struct Minibatch {
-    /// Steps.
-    n: usize,
-    /// [n, obs_dim].
-    obs: Vec<f32>,
-    /// [n, action_dim].
-    actions: Vec<f32>,
-    /// [n].
-    old_logp: Vec<f32>,
-    /// [n], normalised with `ppo.adv_norm`.
-    advantage: Vec<f32>,
-    /// [n, c].
-    returns: Vec<f32>,
-    /// [n, c].
-    old_value: Vec<f32>,
-}
-
-/// Sums over the minibatch steps of one update, for its stats.
-#[derive(Default)]
-struct Totals {
-    policy_loss: f64,
-    value_loss: f64,
-    entropy: f64,
-    approx_kl: f64,
-    clip_fraction: f64,
-    grad_norm: f64,
-    steps: usize,
 }
 
 impl Ppo {
@@ -506,5 +477,6 @@ impl Algorithm for Ppo {
 }
 
 mod fast;
+mod minibatch;
 #[cfg(test)]
 mod tests;

@@ -17,7 +17,7 @@
 //! normalisation) are the `saver` section's.
 
 use super::qnet_grad::quantile_net_grads;
-use super::saver_grad::weighted_quantile_losses;
+use super::saver::grad::weighted_quantile_losses;
 use super::UpdateStats;
 use super::{batch_returns, check_finite, tau_tensors, update_rows, Algorithm, GradPath};
 use crate::config::{RunConfig, SaverConfig};

@@ -5,18 +5,18 @@
 //! L_mon = λ_mon · 2K · mean_{B·K·K·d} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_{B·d} (V(x) − R)²                     (critic only)
 
+pub(super) mod defaults;
 mod env_return;
 mod epochs;
+pub(super) mod grad;
+mod pcpn_tune;
+pub mod signal;
 mod stats;
 mod step;
 mod targets;
 
-use super::pcpn_tune::PcpnTuner;
-use super::saver_grad::{host, PcpnGrad};
-use super::saver_signal::{noise_rank_delta, predicted_delta, SignalBatch};
-use super::{update_rows, Algorithm, UpdateStats};
+use crate::algo::{update_rows, Algorithm, GradPath, UpdateStats};
 use crate::config::{DeltaTarget, RunConfig, SaverConfig};
-use crate::embedding::{cosine_embedding, EMBED_DIM};
 use crate::env::{EnvLayout, Routing};
 use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
@@ -26,7 +26,10 @@ use crate::rollout::Batch;
 use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
 use env_return::{EnvReturn, EnvTargets};
+use grad::{host, PcpnGrad};
+use pcpn_tune::PcpnTuner;
 use saver_proto::NamedTensor;
+use signal::{noise_rank_delta, predicted_delta, SignalBatch};
 use std::borrow::Cow;
 #[cfg(test)]
 pub(super) use step::mu_raw_penalty;
@@ -93,50 +96,13 @@ pub struct Saver {
     at_goal: Option<crate::env::SuccessRule>,
 }
 
-/// How the agent's gradient through the PCPN is computed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum GradPath {
-    /// Hand-written forward and input-gradient of the frozen PCPN (the default on the CPU).
-    Fast,
-    /// candle autograd through the whole graph (the reference the fast path is tested
-    /// against; the default on other devices).
-    Reference,
-}
-
-impl GradPath {
-    /// The fused blocks run on the host; on a GPU candle's graph keeps everything on
-    /// the device.
-    pub fn for_device(dev: &Device) -> Self {
-        if dev.is_cpu() {
-            Self::Fast
-        } else {
-            Self::Reference
-        }
-    }
-}
-
-/// τ [d, B, K] and its cosine embedding [d, B, K, 128] as tensors.
-pub fn tau_tensors(
-    taus: &[f32],
-    d: usize,
-    b: usize,
-    k: usize,
-    dev: &Device,
-) -> Result<(Tensor, Tensor)> {
-    let cos = cosine_embedding(taus, EMBED_DIM);
-    Ok((
-        Tensor::from_slice(taus, (d, b, k), dev)?,
-        Tensor::from_vec(cos, (d, b, k, EMBED_DIM), dev)?,
-    ))
-}
-
-/// SAVER's registration ([`super::entry`]).
-pub(crate) const ENTRY: super::Entry = super::Entry {
+/// SAVER's registration ([`crate::algo::entry`]).
+pub(crate) const ENTRY: crate::algo::Entry = crate::algo::Entry {
     build: build_saver,
-    policy: super::gaussian_policy,
-    recommend: super::saver_defaults::recommend,
-    check: super::no_checks,
-    flops: super::saver_defaults::flops,
+    policy: crate::algo::gaussian_policy,
+    recommend: defaults::recommend,
+    check: crate::algo::no_checks,
+    flops: defaults::flops,
 };
 
 fn build_saver(config: &RunConfig, pcpn: Option<Pcpn>, dev: &Device) -> Result<Box<dyn Algorithm>> {
@@ -460,3 +426,6 @@ impl Algorithm for Saver {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod signal_tests;

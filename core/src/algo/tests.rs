@@ -8,6 +8,7 @@ use crate::env::{EnvKind, EnvLayout, EnvSpec};
 use crate::link::PolicyWeights;
 use crate::nets::{Agent, Pcpn, Policy};
 use crate::rng::{rng_for, uniform01};
+use crate::rollout::Batch;
 use candle_core::{DType, Device, Tensor, Var};
 use std::sync::Arc;
 

@@ -12,6 +12,11 @@ pub struct Angle {
 }
 
 impl Angle {
+    /// Its layout at dimension d: the observation is p, a (step, angle) pair of action entries per two coordinates.
+    pub const fn layout_at(d: usize) -> EnvLayout {
+        EnvLayout::cube(d, d, 0)
+    }
+
     /// A d-cube (d even) with the goal at the origin.
     pub fn new(dim: usize, max_steps: u32) -> Self {
         Self {
@@ -39,7 +44,7 @@ impl Angle {
 
 impl Env for Angle {
     fn layout(&self) -> EnvLayout {
-        super::EnvKind::Angle.layout(self.cube.pos.len())
+        Self::layout_at(self.cube.pos.len())
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {

@@ -39,6 +39,16 @@ pub fn hand(angles: [f32; 2]) -> [f32; 2] {
 }
 
 impl Arm {
+    /// Its layout: obs = [goal (2), joint angles (2), hand (2)]; the hand is the
+    /// aligned part.
+    pub const LAYOUT: EnvLayout = EnvLayout {
+        obs_dim: 6,
+        continuous: 2,
+        choices: 0,
+        aligned_start: 4,
+        aligned_dim: 2,
+    };
+
     /// An arm with both angles 0 and the goal at the origin until the first reset.
     pub fn new(max_steps: u32) -> Self {
         Self {
@@ -70,7 +80,7 @@ impl Arm {
 
 impl Env for Arm {
     fn layout(&self) -> EnvLayout {
-        super::EnvKind::Arm.layout(2)
+        Self::LAYOUT
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {

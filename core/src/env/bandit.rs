@@ -27,6 +27,9 @@ pub struct Bandit {
 }
 
 impl Bandit {
+    /// Its layout: p in one coordinate, one continuous action.
+    pub const LAYOUT: EnvLayout = EnvLayout::cube(1, 1, 0);
+
     /// A fresh bandit with the step limit `max_steps` (1 in every valid run).
     pub fn new(max_steps: u32) -> Self {
         let mut cube = Cube::new(1, max_steps);
@@ -37,7 +40,7 @@ impl Bandit {
 
 impl Env for Bandit {
     fn layout(&self) -> EnvLayout {
-        super::EnvKind::Bandit.layout(1)
+        Self::LAYOUT
     }
 
     fn reset(&mut self, _rng: &mut SaverRng, obs: &mut [f32]) {

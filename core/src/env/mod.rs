@@ -9,10 +9,11 @@
 pub use angle::Angle;
 pub use arm::{hand, wrap_angle, Arm};
 pub use bandit::{bandit_reward, Bandit};
+pub use layout::{EnvBounds, EnvLayout};
 pub use point::Point;
-pub use preset::{dim_help, Preset, Routing, PRESETS};
+pub use preset::{dim_help, EnvKind, Preset, Routing, PRESETS};
 pub use select::Select;
-pub use spec::{EnvBounds, EnvKind, EnvLayout, EnvSpec};
+pub use spec::EnvSpec;
 pub use success::SuccessRule;
 
 use crate::rng::SaverRng;
@@ -203,6 +204,7 @@ pub(crate) fn finish_step(
 mod angle;
 mod arm;
 mod bandit;
+mod layout;
 mod point;
 mod preset;
 mod select;

@@ -15,6 +15,11 @@ pub struct Point {
 }
 
 impl Point {
+    /// Its layout at dimension d: the observation is p, one action entry per coordinate.
+    pub const fn layout_at(d: usize) -> EnvLayout {
+        EnvLayout::cube(d, d, 0)
+    }
+
     /// A d-cube with the goal at the origin.
     pub fn new(dim: usize, max_steps: u32) -> Self {
         Self {
@@ -25,7 +30,7 @@ impl Point {
 
 impl Env for Point {
     fn layout(&self) -> EnvLayout {
-        super::EnvKind::Point.layout(self.cube.pos.len())
+        Self::layout_at(self.cube.pos.len())
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {

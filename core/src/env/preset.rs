@@ -3,7 +3,63 @@
 //! it — is one [`Preset`] row of [`PRESETS`]. A new preset is its env file, a variant
 //! of [`EnvKind`] and one row here (docs/ARCHITECTURE.md shows the diff).
 
-use super::{Angle, Arm, Bandit, Env, EnvBounds, EnvKind, EnvLayout, Point, Select};
+use super::layout::{EnvBounds, EnvLayout};
+use super::{Angle, Arm, Bandit, Env, Point, Select};
+use crate::{CoreError, Result};
+use serde::{Deserialize, Serialize};
+
+/// The paper's environment presets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum EnvKind {
+    /// Pairwise (step, angle) moves in a d-cube, d even (paper Fig. 3).
+    Angle,
+    /// Choose one dimension and a step in a d-cube (paper Fig. 4).
+    Select,
+    /// Two-joint robot arm reaching a goal (paper Fig. 5).
+    Arm,
+    /// One-step continuous bandit: two narrow optimal actions and a broad decoy (d = 1;
+    /// standalone QRRL's multi-modality check, not in the paper).
+    Bandit,
+    /// Free moves in a d-cube, one action dim per coordinate (the paper's Fig. 1(a);
+    /// actions aligned with the vector reward).
+    Point,
+}
+
+impl EnvKind {
+    /// Parses a preset's name ([`PRESETS`]).
+    pub fn parse(s: &str) -> Result<Self> {
+        <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            let names: Vec<_> = PRESETS.iter().map(|p| p.name).collect();
+            CoreError::Config(format!(
+                "env: unknown environment {:?} (expected one of {})",
+                crate::clip_text(s),
+                names.join(", ")
+            ))
+        })
+    }
+
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        self.preset().name
+    }
+
+    /// The episode length this preset always has, if it has one (the bandit: 1 step);
+    /// a run of it must use it as its step limit.
+    pub fn fixed_episode_steps(self) -> Option<u32> {
+        self.preset().fixed_episode_steps
+    }
+
+    /// The layout of this preset at dimension `d`.
+    pub fn layout(self, d: usize) -> EnvLayout {
+        (self.preset().layout)(d)
+    }
+
+    /// What this preset's observations and steps can hold at dimension `d`.
+    pub fn bounds(self, d: usize) -> EnvBounds {
+        (self.preset().bounds)(d)
+    }
+}
 
 /// One built-in environment.
 pub struct Preset {
@@ -64,17 +120,6 @@ impl Routing {
     }
 }
 
-/// A d-cube's layout: the observation is p, `continuous` action entries, `choices`.
-const fn cube(d: usize, continuous: usize, choices: usize) -> EnvLayout {
-    EnvLayout {
-        obs_dim: d,
-        continuous,
-        choices,
-        aligned_start: 0,
-        aligned_dim: d,
-    }
-}
-
 /// Positions stay in the cube; a step moves each coordinate by at most 0.1 (angle:
 /// 0.1·|sin φ|, 0.1·|cos φ|; select: 0.1 on one coordinate; point: 0.1 on each).
 /// The `--dim` help, built from the table: each preset's dimensions (probed through
@@ -114,7 +159,7 @@ pub const PRESETS: [Preset; 5] = [
                 .then(|| format!("angle needs an even dimension >= 2, got {d}"))
         },
         default_dim: 4,
-        layout: |d| cube(d, d, 0),
+        layout: Angle::layout_at,
         bounds: cube_bounds,
         make: |d, max_steps| Box::new(Angle::new(d, max_steps)),
         fixed_episode_steps: None,
@@ -129,7 +174,7 @@ pub const PRESETS: [Preset; 5] = [
         name: "select",
         bad_dim: |d| (d == 0).then(|| "select needs a dimension >= 1, got 0".into()),
         default_dim: 4,
-        layout: |d| cube(d, 1, d),
+        layout: Select::layout_at,
         bounds: cube_bounds,
         make: |d, max_steps| Box::new(Select::new(d, max_steps)),
         fixed_episode_steps: None,
@@ -144,14 +189,7 @@ pub const PRESETS: [Preset; 5] = [
         name: "arm",
         bad_dim: |d| (d != 2).then(|| format!("the arm's hand moves in 2 dimensions, got dim {d}")),
         default_dim: 2,
-        // obs = [goal (2), joint angles (2), hand (2)]; the hand is the aligned part.
-        layout: |_| EnvLayout {
-            obs_dim: 6,
-            continuous: 2,
-            choices: 0,
-            aligned_start: 4,
-            aligned_dim: 2,
-        },
+        layout: |_| Arm::LAYOUT,
         // goal in [-1, 1]^2, angles in [-π, π), hand in [-2, 2]^2. Each joint turns by
         // at most 0.02π per step; the hand moves by at most its lever arm times that:
         // 2·0.02π (joint 1) + 1·0.02π (joint 2) < 0.19.
@@ -178,7 +216,7 @@ pub const PRESETS: [Preset; 5] = [
             (d != 1).then(|| format!("the bandit has one action and one coordinate, got dim {d}"))
         },
         default_dim: 1,
-        layout: |_| cube(1, 1, 0),
+        layout: |_| Bandit::LAYOUT,
         // p in [0, 1]; the one step moves it by R(a) <= 1.
         bounds: |_| EnvBounds {
             obs_low: vec![0.0],
@@ -199,7 +237,7 @@ pub const PRESETS: [Preset; 5] = [
         name: "point",
         bad_dim: |d| (d == 0).then(|| "point needs a dimension >= 1, got 0".into()),
         default_dim: 4,
-        layout: |d| cube(d, d, 0),
+        layout: Point::layout_at,
         bounds: cube_bounds,
         make: |d, max_steps| Box::new(Point::new(d, max_steps)),
         fixed_episode_steps: None,

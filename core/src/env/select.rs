@@ -11,6 +11,11 @@ pub struct Select {
 }
 
 impl Select {
+    /// Its layout at dimension d: the observation is p, one step entry and a choice of d coordinates.
+    pub const fn layout_at(d: usize) -> EnvLayout {
+        EnvLayout::cube(d, 1, d)
+    }
+
     /// A d-cube with the goal at the origin.
     pub fn new(dim: usize, max_steps: u32) -> Self {
         Self {
@@ -37,7 +42,7 @@ pub(crate) fn argmax(xs: &[f32]) -> usize {
 
 impl Env for Select {
     fn layout(&self) -> EnvLayout {
-        super::EnvKind::Select.layout(self.cube.pos.len())
+        Self::layout_at(self.cube.pos.len())
     }
 
     fn reset(&mut self, rng: &mut SaverRng, obs: &mut [f32]) {

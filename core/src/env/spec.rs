@@ -1,10 +1,11 @@
 //! Environments as data: an [`EnvSpec`] is a name, a dimension d, a layout
-//! ([`EnvLayout`]) and the values the env can produce ([`EnvBounds`]). The paper's
+//! ([`EnvLayout`]) and the values the env can produce ([`EnvBounds`], both in
+//! layout.rs). The paper's
 //! angle, select and arm are presets of it ([`EnvKind`]); a user's env is a spec of its
 //! own ([`EnvSpec::custom`]) whose actors bring the env itself.
 
-use super::preset::{Routing, PRESETS};
-use super::slack;
+use super::layout::{EnvBounds, EnvLayout};
+use super::preset::{EnvKind, Routing};
 use super::{Env, SuccessRule, SUCCESS_RADIUS};
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
@@ -12,128 +13,6 @@ use std::fmt;
 
 /// Largest d, observation or action size of an env spec.
 pub const MAX_ENV_DIM: usize = 1024;
-
-/// The paper's environment presets.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum EnvKind {
-    /// Pairwise (step, angle) moves in a d-cube, d even (paper Fig. 3).
-    Angle,
-    /// Choose one dimension and a step in a d-cube (paper Fig. 4).
-    Select,
-    /// Two-joint robot arm reaching a goal (paper Fig. 5).
-    Arm,
-    /// One-step continuous bandit: two narrow optimal actions and a broad decoy (d = 1;
-    /// standalone QRRL's multi-modality check, not in the paper).
-    Bandit,
-    /// Free moves in a d-cube, one action dim per coordinate (the paper's Fig. 1(a);
-    /// actions aligned with the vector reward).
-    Point,
-}
-
-impl EnvKind {
-    /// Parses a preset's name ([`PRESETS`]).
-    pub fn parse(s: &str) -> Result<Self> {
-        <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
-            let names: Vec<_> = PRESETS.iter().map(|p| p.name).collect();
-            CoreError::Config(format!(
-                "env: unknown environment {:?} (expected one of {})",
-                crate::clip_text(s),
-                names.join(", ")
-            ))
-        })
-    }
-
-    /// The lower-case name.
-    pub fn name(self) -> &'static str {
-        self.preset().name
-    }
-
-    /// The episode length this preset always has, if it has one (the bandit: 1 step);
-    /// a run of it must use it as its step limit.
-    pub fn fixed_episode_steps(self) -> Option<u32> {
-        self.preset().fixed_episode_steps
-    }
-
-    /// The layout of this preset at dimension `d`.
-    pub fn layout(self, d: usize) -> EnvLayout {
-        (self.preset().layout)(d)
-    }
-
-    /// What this preset's observations and steps can hold at dimension `d`.
-    pub fn bounds(self, d: usize) -> EnvBounds {
-        (self.preset().bounds)(d)
-    }
-}
-
-/// An environment described as data, so that any actor can speak it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct EnvLayout {
-    /// Observation length.
-    pub obs_dim: usize,
-    /// Gaussian action dims: the agent outputs one mean and one log-std per dim.
-    pub continuous: usize,
-    /// Size of the categorical choice (0: none). The agent outputs that many logits.
-    pub choices: usize,
-    /// First observation entry of the state-aligned part.
-    pub aligned_start: usize,
-    /// d: number of state-aligned entries (and of vector reward components).
-    pub aligned_dim: usize,
-}
-
-impl EnvLayout {
-    /// Length of the agent's mean output: continuous means, then the choice logits.
-    pub fn mu_dim(&self) -> usize {
-        self.continuous + self.choices
-    }
-    /// Length of the trainable log-std vector.
-    pub fn log_std_dim(&self) -> usize {
-        self.continuous
-    }
-    /// Length of a stored action: continuous values then a one-hot of the choice.
-    pub fn action_dim(&self) -> usize {
-        self.continuous + self.choices
-    }
-    /// Input width of the PCPN and of the vector critic: [obs, mu, log sigma].
-    pub fn pcpn_input_dim(&self) -> usize {
-        self.obs_dim + self.mu_dim() + self.log_std_dim()
-    }
-}
-
-/// The values an environment can produce, as data: the bounds of each observation
-/// entry and the largest change of a state-aligned coordinate in one step (which
-/// bounds the vector reward too: ||p - g| - |p' - g|| <= |p' - p|).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct EnvBounds {
-    /// Smallest value of each observation entry.
-    pub obs_low: Vec<f32>,
-    /// Largest value of each observation entry.
-    pub obs_high: Vec<f32>,
-    /// Largest |p' - p| of one aligned coordinate in one step.
-    pub max_change: f32,
-}
-
-impl EnvBounds {
-    /// The first value of `obs` (observations back to back) outside its entry's range,
-    /// as (index in `obs`, entry); rounding slack passes, NaN does not.
-    pub fn obs_outside(&self, obs: &[f32]) -> Option<(usize, usize)> {
-        let n = self.obs_low.len();
-        obs.iter().enumerate().find_map(|(i, &v)| {
-            let k = i % n;
-            let (lo, hi) = (self.obs_low[k], self.obs_high[k]);
-            (!(v >= lo - slack(lo) && v <= hi + slack(hi))).then_some((i, k))
-        })
-    }
-
-    /// The index of the first of `changes` (aligned changes or vector rewards) beyond
-    /// ±max_change; rounding slack passes, NaN does not.
-    pub fn change_beyond(&self, changes: &[f32]) -> Option<usize> {
-        let limit = self.max_change + slack(self.max_change);
-        changes.iter().position(|v| v.is_nan() || v.abs() > limit)
-    }
-}
 
 /// An environment: the identity of the dynamics a PCPN models and what actors and the
 /// learner need to know of it. Valid by construction.

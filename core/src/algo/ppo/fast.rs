@@ -7,7 +7,7 @@
 //! Its gradients equal the reference's to rounding (tested), ties of min/max/clamp split
 //! as candle splits them.
 
-use super::{Minibatch, Totals};
+use super::minibatch::{Minibatch, Totals};
 use crate::algo::check_finite;
 use crate::algo::dense::matmul;
 use crate::config::{HeadConfig, PpoConfig};

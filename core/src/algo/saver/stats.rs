@@ -1,9 +1,9 @@
 //! The statistics of a SAVER update: its losses, the policy's, and the per-dimension and
 //! signal statistics of the batch at the update's start.
 
+use super::signal::{rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY};
 use super::step::Losses;
 use super::{Saver, Start};
-use crate::algo::saver_signal::{rank_stats, snr_stats, SignalBatch, SIGNAL_EVERY};
 use crate::algo::{policy_diagnostics, UpdateStats};
 use crate::rollout::Batch;
 use crate::Result;

@@ -2,9 +2,10 @@
 //! penalty through the frozen PCPN (fast path or autograd reference), and the saturation wall.
 
 use super::env_return::{leaf_grad, EnvReturn, EnvRows};
-use super::{tau_tensors, Forward, GradPath, Saver};
-use crate::algo::saver_grad::{policy_grads, saver_actor_losses};
+use super::grad::{policy_grads, saver_actor_losses};
+use super::{Forward, Saver};
 use crate::algo::{check_finite, matrix};
+use crate::algo::{tau_tensors, GradPath};
 use crate::config::MU_RAW_LIMIT;
 use crate::rng::uniform01;
 use crate::Result;

@@ -6,7 +6,7 @@
 //! reset states); these samples do. The actor always reads a frozen snapshot, so no
 //! gradient of the actor loss reaches the PCPN's weights.
 
-use super::{
+use crate::algo::{
     check_finite, quantile_net_grads, restore_optimizer, AlgoState, Loss, OPTIMIZER_STEPS,
 };
 use crate::config::OptimizerKind;
@@ -108,7 +108,7 @@ impl PcpnTuner {
         numbers: &BTreeMap<String, u128>,
     ) -> Result<()> {
         self.params.load(get)?;
-        let steps = super::saved_number(numbers, PCPN_TUNE_STEPS)?;
+        let steps = crate::algo::saved_number(numbers, PCPN_TUNE_STEPS)?;
         let own = BTreeMap::from([(OPTIMIZER_STEPS.to_string(), steps)]);
         restore_optimizer(&mut self.opt, get, &own)
     }

@@ -2,12 +2,13 @@
 //! target makes SAVER's update blind to an error in the observed change, the observed
 //! one does not, and the statistics tell the two cases apart.
 
-use super::saver_signal::{noise_ranks, normal_cdf, predicted_delta, rank_stats, SignalBatch};
-use super::tests::{random_batch, random_pcpn, uniform};
-use super::*;
+use super::signal::{noise_ranks, normal_cdf, predicted_delta, rank_stats, SignalBatch};
+use crate::algo::tests::{random_batch, random_pcpn, uniform};
+use crate::algo::*;
 use crate::config::{Algo, DeltaTarget, RunConfig};
 use crate::env::{EnvKind, EnvSpec};
 use crate::rng::rng_for;
+use crate::rollout::Batch;
 use candle_core::{DType, Device};
 
 /// A batch of 8 trajectories × 8 steps of random rows, some actions beyond ±1.

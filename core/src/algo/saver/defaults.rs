@@ -1,5 +1,5 @@
-//! SAVER's defaults ([`super::Entry::recommend`]) and the work of its update
-//! ([`super::Entry::flops`]).
+//! SAVER's defaults ([`crate::algo::Entry::recommend`]) and the work of its update
+//! ([`crate::algo::Entry::flops`]).
 //!
 //! SAVER with the smallest set of changes that make it learn (results/README.md has
 //! the ablations): TF1 Adam at 1e-3 instead of RMSProp at the paper's rate, μ = tanh(raw)
@@ -10,7 +10,7 @@
 //! on σ; on a custom env, the saturation wall, a PCPN that keeps learning on the
 //! policy's steps, a floor on σ and four optimiser steps per batch.
 
-use super::{mlp_dims, mlp_flops};
+use crate::algo::{mlp_dims, mlp_flops};
 use crate::config::{HeadConfig, OptimizerKind, RunConfig};
 use crate::env::EnvKind;
 
@@ -158,7 +158,7 @@ pub(crate) fn flops(config: &RunConfig, b: usize, t: usize) -> f64 {
     let h = &config.hidden;
     let agent = |rows| mlp_flops(rows, &mlp_dims(l.obs_dim, h, l.mu_dim()));
     let critic = |rows| mlp_flops(rows, &mlp_dims(l.pcpn_input_dim(), h, l.aligned_dim));
-    let (pcpn, embed) = super::quantile_net_flops(b, k, l.pcpn_input_dim(), l.aligned_dim);
+    let (pcpn, embed) = crate::algo::quantile_net_flops(b, k, l.pcpn_input_dim(), l.aligned_dim);
     let pass = |rows| 3.0 * (agent(rows) + critic(rows));
     if config.saver.one_step(b) {
         return pass(b + t) + 2.0 * (pcpn + embed);

@@ -33,7 +33,7 @@
 //! SAVER's gradient on μ_i (`snr_saver_i`) and of A2C's score-function gradient
 //! −(ε_bi/σ_i)·Σ_j Â_bj on the same batch (`snr_a2c_i`). Nothing here changes training.
 
-use super::saver::tau_tensors;
+use crate::algo::tau_tensors;
 use crate::env::EnvLayout;
 use crate::nets::Pcpn;
 use crate::Result;

@@ -12,7 +12,7 @@
 //! file, is the reference through candle autograd that a test holds this path to (and
 //! the path on devices other than the CPU).
 
-use super::fused::{self, Heads};
+use crate::algo::fused::{self, Heads};
 use crate::config::SaverConfig;
 use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::Pcpn;
