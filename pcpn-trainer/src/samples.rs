@@ -1,5 +1,5 @@
 //! Pretraining samples streamed by actors (saver.proto `ProvideSamples`;
-//! docs/ALGORITHM.md §9.3). The store cannot step a custom env, so the actors that
+//! docs/ALGORITHM.md §9.7). The store cannot step a custom env, so the actors that
 //! bring it draw the transitions ("walk" samples) and the store pretrains from them.
 //!
 //! A [`SampleHub`] sits between the providers' streams (async, thin) and the

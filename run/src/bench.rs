@@ -260,7 +260,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     );
     let mut single = Vec::new();
     let mut ppo = Vec::new();
-    for algo in [Algo::A2c, Algo::Saver, Algo::Qrrl, Algo::Ppo] {
+    for &algo in Algo::all() {
         for &d in &args.dims {
             let (s, flops, n) = time_update(algo, d, args.seconds, 1, false, GradPath::Fast)?;
             match algo {

@@ -22,14 +22,20 @@ pub enum Algo {
 }
 
 impl Algo {
-    /// Parses `saver`, `a2c`, `qrrl` or `ppo`.
+    /// Parses an algorithm's name ([`Algo::name`]).
     pub fn parse(s: &str) -> Result<Self> {
         <Self as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            let names: Vec<_> = Self::all().iter().map(|a| a.name()).collect();
             CoreError::Config(format!(
-                "algo: unknown algorithm {:?} (expected saver, a2c, qrrl or ppo)",
-                crate::clip_text(s)
+                "algo: unknown algorithm {:?} (expected one of {})",
+                crate::clip_text(s),
+                names.join(", ")
             ))
         })
+    }
+    /// Every algorithm, in the order `--help` lists them.
+    pub fn all() -> &'static [Self] {
+        <Self as clap::ValueEnum>::value_variants()
     }
     /// The lower-case name.
     pub fn name(self) -> &'static str {

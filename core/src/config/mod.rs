@@ -607,6 +607,38 @@ mod tests {
     use super::*;
     use crate::env::EnvKind;
 
+    /// Every hand-written list of algorithms or presets names each row of the tables
+    /// (a new algorithm or preset must appear in each): the wire's comments, which no
+    /// code can build, and the texts built from the tables.
+    #[test]
+    fn every_list_names_every_algorithm_and_preset() {
+        let proto = include_str!("../../../proto/saver.proto");
+        let line = |field: &str| {
+            proto
+                .lines()
+                .find(|l| l.trim_start().starts_with(field))
+                .unwrap_or_else(|| panic!("saver.proto has no {field}"))
+                .to_string()
+        };
+        let algo_line = line("string algo = 1;");
+        let env_comment = line("// An environment: its name");
+        let parse_err = Algo::parse("nope").unwrap_err().to_string();
+        let env_err = EnvKind::parse("nope").unwrap_err().to_string();
+        let dim_help = crate::env::dim_help();
+        for a in Algo::all() {
+            let quoted = format!("\"{}\"", a.name());
+            assert!(algo_line.contains(&quoted), "{algo_line} lacks {quoted}");
+            assert!(parse_err.contains(a.name()), "{parse_err} lacks {}", a.name());
+        }
+        assert_eq!(Algo::all().len(), 4, "a new algorithm: check the lists above");
+        for p in crate::env::PRESETS.iter() {
+            let quoted = format!("\"{}\"", p.name);
+            assert!(env_comment.contains(&quoted), "{env_comment} lacks {quoted}");
+            assert!(env_err.contains(p.name), "{env_err} lacks {}", p.name);
+            assert!(dim_help.contains(p.name), "{dim_help} lacks {}", p.name);
+        }
+    }
+
     #[test]
     fn paper_defaults_validate_and_bad_fields_are_named() {
         let env = EnvSpec::new(EnvKind::Angle, 4).unwrap();

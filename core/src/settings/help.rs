@@ -4,7 +4,7 @@
 use super::{dotted, DEFAULT_STEPS};
 use crate::algo::{recommended, HIGH_DIM_ANGLE};
 use crate::config::{Algo, RunConfig};
-use crate::env::{EnvKind, EnvSpec};
+use crate::env::{EnvKind, EnvSpec, PRESETS};
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
@@ -15,8 +15,8 @@ type Settings = BTreeMap<String, String>;
 struct Defaults {
     /// (label, config) pairs: a2c and saver defaults, the paper's saver; on angle d=4.
     angle: Vec<(&'static str, Settings)>,
-    /// The same on select and arm.
-    others: Vec<Settings>,
+    /// The same on every other preset (at its default dimension), by name.
+    others: Vec<(&'static str, Vec<Settings>)>,
     /// SAVER's default on angle from [`HIGH_DIM_ANGLE`] on.
     high_dim: Settings,
     /// SAVER's default on a custom env (one with continuous actions).
@@ -41,8 +41,11 @@ fn defaults() -> &'static Defaults {
             .collect()
         };
         let angle = tables(EnvKind::Angle, 4);
-        let mut others = tables(EnvKind::Select, 4);
-        others.extend(tables(EnvKind::Arm, 2));
+        let others = PRESETS
+            .iter()
+            .filter(|p| p.kind != EnvKind::Angle)
+            .map(|p| (p.name, tables(p.kind, p.default_dim)))
+            .collect();
         let high_dim = dotted(&recommended(
             &preset(EnvKind::Angle, HIGH_DIM_ANGLE),
             Algo::Saver,
@@ -50,7 +53,7 @@ fn defaults() -> &'static Defaults {
         ));
         let custom = EnvSpec::unit_custom("custom", 1.0).expect("a custom env");
         let custom = dotted(&recommended(&custom, Algo::Saver, DEFAULT_STEPS));
-        let more = <Algo as clap::ValueEnum>::value_variants()
+        let more = Algo::all()
             .iter()
             .copied()
             .filter(|a| !matches!(a, Algo::A2c | Algo::Saver))
@@ -96,13 +99,23 @@ pub fn help(text: &str, path: &str) -> String {
         format!("{text} [default: {}]", parts.join(", "))
     };
     let on_angle = |t: &Settings| shown(t, path);
-    let varies = d
+    let varies: Vec<&str> = d
         .others
         .iter()
-        .zip(d.angle.iter().cycle())
-        .any(|(o, (_, a))| on_angle(o) != on_angle(a));
-    if varies {
-        out.push_str(" (on angle; select and arm: docs/ALGORITHM.md)");
+        .filter(|(_, tables)| {
+            tables
+                .iter()
+                .zip(&d.angle)
+                .any(|(o, (_, a))| on_angle(o) != on_angle(a))
+        })
+        .map(|(name, _)| *name)
+        .collect();
+    if let Some((last, rest)) = varies.split_last() {
+        let names = match rest {
+            [] => last.to_string(),
+            _ => format!("{} and {last}", rest.join(", ")),
+        };
+        out.push_str(&format!(" (on angle; {names}: docs/ALGORITHM.md)"));
     }
     let high = on_angle(&d.high_dim);
     if high != values[1].1 {
