@@ -12,6 +12,7 @@ mod hub;
 mod inproc;
 pub mod ledger;
 pub mod metrics;
+mod sinks;
 pub mod size_limit;
 pub mod tensorboard;
 pub mod trainer;

@@ -4,7 +4,8 @@
 
 use crate::best::{Evaluator, PolicyFiles};
 use crate::checkpoint::{save, ActorStates, Counters, RunState, CHECKPOINT_FILE};
-use crate::metrics::{MetricsCsv, MetricsRow};
+use crate::metrics::MetricsRow;
+use crate::sinks::{io_error, Sinks};
 use crate::warn::RateLimited;
 use crate::Hub;
 use saver_core::algo::Algorithm;
@@ -142,15 +143,10 @@ struct Round {
     lag_max: u64,
 }
 
-/// Updates per row of per_dim.csv (each row the mean over them).
-const PER_DIM_EVERY: u64 = 10;
-
 impl Trainer {
     fn run(mut self, opts: &TrainerOptions) -> Result<TrainerOutcome> {
-        let io = |what: &str, e: std::io::Error| CoreError::Checkpoint(format!("{what}: {e}"));
         let run_dir = &opts.run_dir;
-        std::fs::create_dir_all(run_dir).map_err(|e| io("creating run folder", e))?;
-        let metrics_path = run_dir.join("metrics.csv");
+        std::fs::create_dir_all(run_dir).map_err(|e| io_error("creating run folder", e))?;
         let RunState {
             counters: mut c,
             // Sync mode: the actors' states after the last round, saved with the
@@ -159,18 +155,14 @@ impl Trainer {
             mut window,
         } = opts.start.clone();
         let resumed = c != Counters::default();
-        let mut csv = MetricsCsv::create(&metrics_path, &self.algo.stat_names(), resumed)
-            .map_err(|e| io("creating metrics.csv", e))?;
-        let mut per_dim =
-            crate::metrics::PerDimCsv::new(&run_dir.join("per_dim.csv"), resumed, PER_DIM_EVERY);
-        let mut events = crate::tensorboard::EventWriter::create(run_dir)
-            .map_err(|e| io("creating the TensorBoard event file", e))?;
         let config = self.hub.config().clone();
-        events
-            .write_hparams(&crate::tensorboard::hparams_of(
-                &serde_json::to_value(&config).unwrap_or_default(),
-            ))
-            .map_err(|e| io("writing the TensorBoard hparams", e))?;
+        let mut sinks = Sinks::open(
+            run_dir,
+            self.algo.stat_names(),
+            resumed,
+            &config,
+            opts.rows.clone(),
+        )?;
         let wait = self
             .hub
             .wait_for_actors(config.actors as usize, resumed, &self.stop);
@@ -248,28 +240,9 @@ impl Trainer {
                     lag_max,
                     stale_dropped,
                     skipped_updates: skipped,
-                    // In the columns' order, by name (NaN for a value not reported).
-                    stats: self
-                        .algo
-                        .stat_names()
-                        .iter()
-                        .map(|n| stats.get(n).unwrap_or(f32::NAN))
-                        .collect(),
+                    stats: sinks.columns(&stats),
                 };
-                // The row before the version: a resumed run learns from metrics.csv
-                // the newest version any client can have seen.
-                csv.write(&row).map_err(|e| io("writing metrics.csv", e))?;
-                per_dim
-                    .add(row.steps, row.updates, &stats.per_dim)
-                    .map_err(|e| io("writing per_dim.csv", e))?;
-                let scalars = crate::tensorboard::scalars(&row, &self.algo.stat_names(), &episodes);
-                events
-                    .write(row.steps, &scalars)
-                    .map_err(|e| io("writing the TensorBoard events", e))?;
-                crate::metrics::export(&scalars, &row, self.hub.counts());
-                if let Some(tx) = &opts.rows {
-                    let _ = tx.send(row);
-                }
+                sinks.write(row, &stats, &episodes, self.hub.counts())?;
             }
             // Finite: the optimiser never writes a non-finite value.
             self.hub.publish(Arc::new(PolicyWeights {
@@ -296,7 +269,7 @@ impl Trainer {
             steps: c.steps,
             wall_s: c.wall_ms as f64 / 1000.0,
             checkpoint,
-            metrics: metrics_path,
+            metrics: run_dir.join("metrics.csv"),
             mean_ep_len_100: window.mean_all(),
             stale_dropped,
             interrupted,

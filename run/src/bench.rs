@@ -171,16 +171,6 @@ fn synthetic_batch(l: &EnvLayout, n: usize, seed: u64) -> Batch {
     }
 }
 
-/// An untrained frozen PCPN (timing does not depend on its training).
-pub fn random_pcpn(spec: &EnvSpec, dev: &Device) -> Result<Pcpn> {
-    Ok(Pcpn::random_frozen(
-        &spec.layout(),
-        0,
-        candle_core::DType::F32,
-        dev,
-    )?)
-}
-
 /// Seconds per update of `algo` on angle d (a synthetic batch, a random PCPN; with
 /// `tune`, SAVER's PCPN trained on each batch at a custom env's rate), with the
 /// update's FLOPs and transitions.
@@ -200,7 +190,7 @@ fn time_update(
     }
     let pcpn = algo
         .has_pcpn()
-        .then(|| random_pcpn(&spec, &dev))
+        .then(|| Pcpn::random_frozen(&spec.layout(), 0, candle_core::DType::F32, &dev))
         .transpose()?;
     let mut a: Box<dyn Algorithm> = build(&config, pcpn, &dev)?;
     a.set_threads(threads);
@@ -330,7 +320,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         config.steps = args.cycle_updates * config.batch_transitions();
         let pcpn = algo
             .has_pcpn()
-            .then(|| random_pcpn(&spec, &dev))
+            .then(|| Pcpn::random_frozen(&spec.layout(), 0, candle_core::DType::F32, &dev))
             .transpose()?;
         let run_dir = out.join(format!("{}-d{d}", algo.name()));
         let o = train_with(

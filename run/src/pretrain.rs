@@ -5,7 +5,7 @@
 use crate::progress::Progress;
 use anyhow::{Context, Result};
 use clap::Args;
-use saver_core::config::{Algo, PretrainConfig, RunConfig};
+use saver_core::config::{PretrainConfig, RunConfig};
 use saver_core::env::EnvSpec;
 use saver_core::nets::Pcpn;
 use saver_core::settings::{EnvSettings, PretrainSettings, RunSettings};
@@ -118,7 +118,7 @@ pub fn pcpn_for_run(
     store: &PcpnStore,
     explicit: Option<&Path>,
 ) -> Result<Option<Pcpn>> {
-    if config.algo != Algo::Saver {
+    if !config.algo.has_pcpn() {
         return Ok(None);
     }
     let pinned = config.pcpn_sha256.clone();

@@ -8,7 +8,6 @@ use crate::train::{default_run_dir, follow, report, start_learner};
 use anyhow::{Context, Result};
 use clap::Args;
 use saver_actor::remote::{run_remote, RemoteActor};
-use saver_core::config::Algo;
 use saver_core::config::RunConfig;
 use saver_core::nets::Pcpn;
 use saver_core::settings::RunSettings;
@@ -198,7 +197,7 @@ pub fn learner(args: LearnerArgs) -> Result<()> {
     metrics_on(&rt, args.metrics, &args.access)?;
     let listener = rt.block_on(bind(args.listen))?;
     let quit_rx = quit_on_signal(&rt);
-    let (pcpn, listener) = if config.algo == Algo::Saver {
+    let (pcpn, listener) = if config.algo.has_pcpn() {
         // The port answers at once: Status says what the learner waits for, actors
         // are told to keep waiting. The trained service takes the port over after.
         let std = listener.into_std()?;

@@ -1,7 +1,7 @@
 //! The binary as a user runs it: bad input gets a message naming the problem, a run
 //! leaves its files, PCPNs are cached and refused for another env.
 
-use crate::{saver, temp_dir};
+use crate::{saver, temp_dir, text};
 use std::process::{Command, Output};
 
 /// `saver train --algo saver --steps 256 --out <out>` plus `extra`.
@@ -17,14 +17,6 @@ fn train_saver(out: &std::path::Path, extra: &[&str]) -> Output {
     ];
     args.extend(extra);
     saver(&args)
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 #[test]

@@ -10,7 +10,6 @@ use saver_core::nets::Pcpn;
 use saver_learner::grpc::{serve, LearnerService};
 use saver_proto::weights_dir::WeightsDir;
 use saver_proto::NamedTensor;
-use saver_run::bench::random_pcpn;
 use saver_run::train::{follow, start_learner, train_with};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -25,6 +24,12 @@ fn checkpoint(path: &Path) -> Vec<NamedTensor> {
 /// Runs `config` with its actors as gRPC clients of a learner served on 127.0.0.1:0
 /// (writing its weights to `weights_dir` if given); also returns how many versions the
 /// actors read from the learner's files.
+/// An untrained frozen PCPN of `env` (the runs compared need the same one, not a good one).
+fn untrained_pcpn(env: &EnvSpec) -> saver_core::nets::Pcpn {
+    let dev = candle_core::Device::Cpu;
+    saver_core::nets::Pcpn::random_frozen(&env.layout(), 0, candle_core::DType::F32, &dev).unwrap()
+}
+
 fn run_over_grpc(
     config: &RunConfig,
     out: &Path,
@@ -102,8 +107,7 @@ fn sync_over_grpc_equals_the_embedded_run_bit_for_bit() {
     ppo.ppo.minibatch_size = 8;
     for mut config in [saver, a2c, qrrl, ppo] {
         config.actors = 4;
-        let pcpn = (config.algo == Algo::Saver)
-            .then(|| random_pcpn(&config.env, &candle_core::Device::Cpu).unwrap());
+        let pcpn = config.algo.has_pcpn().then(|| untrained_pcpn(&config.env));
         let dir = temp_dir(&format!("grpc-eq-{}", config.algo.name()));
         let embedded = train_with(
             &config,
@@ -414,7 +418,7 @@ fn the_store_refuses_a_pcpn_for_another_env_spec_with_failed_precondition() {
     // A d = 2 PCPN saved under the d = 4 file name.
     let d2 = EnvSpec::new(EnvKind::Angle, 2).unwrap();
     let d4 = EnvSpec::new(EnvKind::Angle, 4).unwrap();
-    let p = random_pcpn(&d2, &candle_core::Device::Cpu).unwrap();
+    let p = untrained_pcpn(&d2);
     let tensors = saver_core::checkpoint::to_named_all(&p.tensors().unwrap()).unwrap();
     let settings = PretrainConfig::recommended(EnvKind::Angle);
     let info = store

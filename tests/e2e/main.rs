@@ -21,6 +21,23 @@ pub fn saver(args: &[&str]) -> Output {
         .expect("the saver binary runs")
 }
 
+/// What a run of the binary printed: its stdout then its stderr.
+pub fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+/// Runs the `saver` binary with `args`, which must succeed: what it printed.
+pub fn saver_ok(args: &[&str]) -> String {
+    let o = saver(args);
+    let printed = text(&o);
+    assert!(o.status.success(), "saver {args:?}: {printed}");
+    printed
+}
+
 /// A fresh, empty temporary folder for one test.
 pub fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("saver-e2e-{name}-{}", std::process::id()));

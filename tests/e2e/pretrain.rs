@@ -2,7 +2,7 @@
 //! `saver train`, `saver pretrain` and the pcpn-trainer's Pretrain call make the same
 //! weights bit for bit, and a stored PCPN of other settings is never used in their place.
 
-use crate::{only_pcpn, temp_dir};
+use crate::{only_pcpn, saver_ok, temp_dir};
 use saver_core::config::{OptimizerKind, PretrainConfig, SampleDistribution};
 use saver_core::env::{EnvKind, EnvSpec};
 use saver_pcpn_trainer::service::{fetch, serve, PcpnService};
@@ -40,18 +40,6 @@ const FLAGS: [&str; 14] = [
     "reset",
 ];
 
-/// `saver args`, which must succeed: its stdout and stderr.
-fn saver(args: &[&str]) -> String {
-    let o = crate::saver(args);
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    assert!(o.status.success(), "saver {args:?}: {text}");
-    text
-}
-
 #[test]
 fn three_entry_points_make_the_same_pcpn_and_other_settings_are_never_reused() {
     let dir = temp_dir("pretrain-entry");
@@ -74,7 +62,7 @@ fn three_entry_points_make_the_same_pcpn_and_other_settings_are_never_reused() {
         &train_s,
     ]);
     train.extend(FLAGS);
-    saver(&train);
+    saver_ok(&train);
     let pretrain_s = s(&by_pretrain);
     let mut pretrain = vec![
         "pretrain",
@@ -86,7 +74,7 @@ fn three_entry_points_make_the_same_pcpn_and_other_settings_are_never_reused() {
         &pretrain_s,
     ];
     pretrain.extend(FLAGS);
-    saver(&pretrain);
+    saver_ok(&pretrain);
 
     let rt = tokio::runtime::Runtime::new().unwrap();
     let listener = rt
@@ -158,7 +146,7 @@ fn three_entry_points_make_the_same_pcpn_and_other_settings_are_never_reused() {
             a => a,
         })
         .collect();
-    let out = saver(&again);
+    let out = saver_ok(&again);
     assert!(out.contains("pretraining one (41 batches)"), "{out}");
     assert_eq!(std::fs::read_dir(&by_train).unwrap().count(), 2);
     std::fs::remove_dir_all(dir).ok();

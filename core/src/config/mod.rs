@@ -628,12 +628,23 @@ mod tests {
         for a in Algo::all() {
             let quoted = format!("\"{}\"", a.name());
             assert!(algo_line.contains(&quoted), "{algo_line} lacks {quoted}");
-            assert!(parse_err.contains(a.name()), "{parse_err} lacks {}", a.name());
+            assert!(
+                parse_err.contains(a.name()),
+                "{parse_err} lacks {}",
+                a.name()
+            );
         }
-        assert_eq!(Algo::all().len(), 4, "a new algorithm: check the lists above");
+        assert_eq!(
+            Algo::all().len(),
+            4,
+            "a new algorithm: check the lists above"
+        );
         for p in crate::env::PRESETS.iter() {
             let quoted = format!("\"{}\"", p.name);
-            assert!(env_comment.contains(&quoted), "{env_comment} lacks {quoted}");
+            assert!(
+                env_comment.contains(&quoted),
+                "{env_comment} lacks {quoted}"
+            );
             assert!(env_err.contains(p.name), "{env_err} lacks {}", p.name);
             assert!(dim_help.contains(p.name), "{dim_help} lacks {}", p.name);
         }
