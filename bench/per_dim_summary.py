@@ -4,7 +4,7 @@ core/src/algo/per_dim.rs) over windows of steps: per coordinate j the critic's
 explained variance 1 - mse/var(R), the raw advantage's std and its correlation with
 the step's own reward; per action entry the share of mu at the tanh bound and the mean
 log sigma. Where the run has them (SAVER on continuous actions,
-core/src/algo/saver_signal.rs): per coordinate the rank correlation of the observed
+core/src/algo/saver/signal.rs): per coordinate the rank correlation of the observed
 and the predicted target, the share of the position change the action causes and the
 PCPN's error against the action's effect; per action entry the signal-to-noise ratio
 of SAVER's and of A2C's gradient on the same batches. Next to it, the run's mean

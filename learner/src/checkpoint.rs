@@ -160,7 +160,7 @@ pub fn check_settings(run_dir: &Path, config: &RunConfig) -> Result<Option<Strin
 /// trains on) and a PCPN not chosen yet (the saved run's is then the one to use).
 /// Returns the saved run's PCPN sha256.
 fn same_settings(path: &Path, saved_json: &str, config: &RunConfig) -> Result<Option<String>> {
-    let saved = serde_json::from_str::<RunConfig>(saved_json).map_err(|e| {
+    let saved = RunConfig::from_json(saved_json).map_err(|e| {
         CoreError::Checkpoint(format!(
             "{}: its settings are unreadable here ({e}): a checkpoint of another SAVER \
              version; nothing in that folder was changed. Start this run in another folder \

@@ -158,8 +158,8 @@ pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
                 source.display()
             )
         })?;
-        let config: RunConfig =
-            toml::from_str(&text).with_context(|| format!("reading {}", cfg.display()))?;
+        let config =
+            RunConfig::from_toml(&text).with_context(|| format!("reading {}", cfg.display()))?;
         let ckpt = source.join("checkpoint.safetensors");
         let bytes = std::fs::read(&ckpt)
             .with_context(|| format!("reading {} (has the run saved one yet?)", ckpt.display()))?;

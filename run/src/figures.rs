@@ -48,8 +48,8 @@ pub fn group(runs: &[PathBuf]) -> Result<Vec<Group>> {
         let cfg = run.join("config.toml");
         let text =
             std::fs::read_to_string(&cfg).with_context(|| format!("reading {}", cfg.display()))?;
-        let config: RunConfig =
-            toml::from_str(&text).with_context(|| format!("reading {}", cfg.display()))?;
+        let config =
+            RunConfig::from_toml(&text).with_context(|| format!("reading {}", cfg.display()))?;
         let key = RunConfig {
             seed: 0,
             steps: 0,

@@ -7,11 +7,11 @@
 //! L_mon = λ_mon · 2K · mean_{B·K·K·A} Huber_1(relu(Q(τ_i) − Q(τ_k)))·1{τ_i<τ_k}
 //! L_c   = λ_c · mean_B (V(o) − R)²,  Â = R − V(o) (R: n-step return of the summed reward)
 //!
-//! The vector variant (`saver.qrrl_vector`, for envs whose action dim j moves coordinate
+//! The vector variant (`qrrl.vector`, for envs whose action dim j moves coordinate
 //! j): V(o) ∈ R^d on the vector reward, and Â_j weighs action dim j.
 //!
 //! Q is the network's output plus a fixed base quantile function s·(2τ − 1)
-//! (`saver.qrrl_spread`), so the initial policy is U(−s, s) rather than a point. A
+//! (`qrrl.spread`), so the initial policy is U(−s, s) rather than a point. A
 //! positive advantage pulls the quantile function toward the action (more likely), a
 //! negative one pushes it away. Its constants (K, κ, λ_mon, λ_c, advantage
 //! normalisation) are the `saver` section's.
@@ -58,8 +58,10 @@ pub struct Qrrl {
     gamma: f32,
     /// Bootstrap at the step limit.
     bootstrap_timeout: bool,
-    /// Loss constants.
+    /// Loss constants (SAVER's quantile loss and monotonic penalty).
     cfg: SaverConfig,
+    /// s of the base quantile function s·(2τ − 1) (`qrrl.spread`).
+    spread: f64,
     /// Which gradient implementation runs.
     path: GradPath,
     /// Threads of the fused blocks (0: one per core).
@@ -89,7 +91,14 @@ fn recommend(c: &mut RunConfig) {
 
 /// The env's actions must suit a quantile policy; V-trace has no ratio to take.
 fn check(c: &RunConfig) -> Result<()> {
-    crate::config::check_quantile_policy(c.env.layout(), c.saver.qrrl_spread)?;
+    crate::config::check_quantile_policy(c.env.layout(), c.qrrl.spread)?;
+    if c.qrrl.vector && !c.env.actions_aligned() {
+        return Err(crate::CoreError::Config(format!(
+            "qrrl.vector: the vector variant pairs action dim j with coordinate j, on an \
+             env whose action dim j moves coordinate j (point, bandit); {} is not one",
+            c.env
+        )));
+    }
     super::refuse_vtrace(
         c,
         "acts with a quantile policy, whose actions have no density to take a ratio of",
@@ -113,7 +122,7 @@ fn quantile_policy(config: &RunConfig) -> Arc<dyn crate::acting::PolicyFamily> {
     // `RunConfig::validate` refuses QRRL on a layout with a choice, so this holds.
     Arc::new(QuantileFamily {
         layout: config.env.layout(),
-        spread: config.saver.qrrl_spread,
+        spread: config.qrrl.spread,
     })
 }
 
@@ -121,7 +130,7 @@ impl Qrrl {
     /// A fresh policy and critic initialised from the run seed.
     pub fn new(config: &RunConfig, dev: &Device) -> Result<Self> {
         let layout = config.env.layout();
-        QuantileFamily::new(layout, config.saver.qrrl_spread)?;
+        QuantileFamily::new(layout, config.qrrl.spread)?;
         let mut rng = rng_for(config.seed, streams::INIT);
         let mut net_params = ParamSet::default();
         let net = Pcpn::init_net(
@@ -132,7 +141,7 @@ impl Qrrl {
             dev,
             &mut net_params,
         )?;
-        let values = if config.saver.qrrl_vector {
+        let values = if config.qrrl.vector {
             layout.aligned_dim
         } else {
             1
@@ -150,6 +159,7 @@ impl Qrrl {
             gamma: config.gamma as f32,
             bootstrap_timeout: config.bootstrap_timeout,
             cfg: config.saver.clone(),
+            spread: config.qrrl.spread,
             path: GradPath::for_device(dev),
             threads: 0,
             dev: dev.clone(),
@@ -167,12 +177,13 @@ pub fn qrrl_actor_losses(
     advantage: &Tensor,
     taus: &[f32],
     cfg: &SaverConfig,
+    spread: f64,
 ) -> Result<(Tensor, Tensor)> {
     let (b, a) = actions.dims2()?;
     let k = taus.len() / (a * b);
     let (tau, cos) = tau_tensors(taus, a, b, k, obs.device())?;
     // Q = network + the base quantile function s·(2τ − 1).
-    let base = base_quantiles(&tau, cfg.qrrl_spread)?;
+    let base = base_quantiles(&tau, spread)?;
     let q = (net.forward(obs, &cos)? + base)?; // [A, B, K]
     let l = weighted_quantile_losses(&q, actions, advantage, &tau, cfg)?;
     Ok((l.actor, l.mon))
@@ -227,7 +238,7 @@ impl Algorithm for Qrrl {
                     &weight,
                     &taus,
                     (&self.cfg).into(),
-                    self.cfg.qrrl_spread as f32,
+                    self.spread as f32,
                     self.threads,
                     Some(&critic_loss),
                 )?;
@@ -236,8 +247,15 @@ impl Algorithm for Qrrl {
             GradPath::Reference => {
                 let actions = Tensor::from_slice(&batch.actions, (b, a), &self.dev)?;
                 let adv_t = Tensor::from_slice(&adv, (b, c), &self.dev)?;
-                let (actor, mon) =
-                    qrrl_actor_losses(&self.net, &obs, &actions, &adv_t, &taus, &self.cfg)?;
+                let (actor, mon) = qrrl_actor_losses(
+                    &self.net,
+                    &obs,
+                    &actions,
+                    &adv_t,
+                    &taus,
+                    &self.cfg,
+                    self.spread,
+                )?;
                 let (av, mv) = (actor.to_scalar::<f32>()?, mon.to_scalar::<f32>()?);
                 (av, mv, ((actor + mon)? + &critic_loss)?.backward()?)
             }
@@ -308,7 +326,7 @@ mod tests {
     fn check_qrrl_gradients(vector: bool) {
         let spec = EnvSpec::new(EnvKind::Angle, 4).unwrap();
         let config = crate::algo::recommended(&spec, Algo::Qrrl, 1);
-        let cfg = config.saver;
+        let (cfg, spread) = (config.saver, config.qrrl.spread);
         let (b, o, a, k) = (21, 4, 4, cfg.quantiles);
         let dev = Device::Cpu;
         let mut params = ParamSet::default();
@@ -334,6 +352,7 @@ mod tests {
             &Tensor::from_slice(&adv, (b, c), &dev).unwrap(),
             &taus,
             &cfg,
+            spread,
         )
         .unwrap();
         let (want_a, want_m) = (
@@ -354,7 +373,7 @@ mod tests {
             &weight,
             &taus,
             (&cfg).into(),
-            cfg.qrrl_spread as f32,
+            spread as f32,
             1,
             None,
         )

@@ -83,7 +83,7 @@ pub struct Saver {
     mu_bound: Option<f64>,
     /// Device.
     dev: Device,
-    /// The last rank statistics (saver_signal.rs).
+    /// The last rank statistics (saver/signal.rs).
     ranks: Vec<(&'static str, Vec<f32>)>,
     /// The PCPN's own training on the policy's steps (`saver.pcpn_tune_lr` > 0).
     tuner: Option<PcpnTuner>,

@@ -578,8 +578,6 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         adv_norm_joint: false,
         mu_raw_penalty: 0.0,
         mu_raw_penalty_entries: Vec::new(),
-        qrrl_spread: 0.0,
-        qrrl_vector: false,
         target: crate::config::DeltaTarget::Observed,
         pcpn_tune_lr: 0.0,
         epochs: 1,

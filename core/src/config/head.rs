@@ -1,7 +1,8 @@
 //! The policy head's bounds ([`HeadConfig`], `[head]` in a config): how the agent's raw
-//! outputs become the action distribution's parameters. A plain data sink: the
+//! outputs become the action distribution's parameters, with its own checks. The
 //! networks (nets/agent.rs, nets/policy.rs) read it.
 
+use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
 
 /// How the agent's raw outputs become the action distribution's parameters. Written
@@ -15,6 +16,27 @@ pub struct HeadConfig {
     /// log σ clamped into [min, max] when set (σ ~ U(0, 1) in pretraining means
     /// log σ ≤ 0); `None`: unbounded, as in the paper.
     pub log_std_bounds: Option<(f64, f64)>,
+}
+
+impl HeadConfig {
+    /// Checks both bounds; the message names the field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &str, why: String| Err(CoreError::Config(format!("{field}: {why}")));
+        if let Some(b) = self.mu_bound {
+            if !(b.is_finite() && b > 0.0) {
+                return bad("head.mu_bound", format!("{b} must be > 0 (inf: unbounded)"));
+            }
+        }
+        if let Some((lo, hi)) = self.log_std_bounds {
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return bad(
+                    "head.log_std_min, head.log_std_max",
+                    format!("[{lo}, {hi}] is not an interval (-inf and inf: unbounded)"),
+                );
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The written form of [`HeadConfig`].

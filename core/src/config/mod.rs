@@ -7,7 +7,10 @@ mod head;
 mod kinds;
 mod ppo;
 mod pretrain;
+mod qrrl;
+mod saver;
 pub(crate) mod unbounded;
+pub mod upgrade;
 
 pub use head::HeadConfig;
 pub use kinds::{Algo, DeltaTarget, Mode, OptimizerKind, SampleDistribution};
@@ -15,116 +18,13 @@ pub use ppo::PpoConfig;
 pub use pretrain::{
     paper_lr, paper_pretrain_batches, preset_or_angle, PretrainConfig, PRETRAIN_EVAL_BATCHES,
 };
+pub use qrrl::{QrrlConfig, QRRL_SPREAD};
+pub use saver::SaverConfig;
 pub(crate) use unbounded::{inf_is_none, neg_inf_is_none, zero_is_none};
 
 use crate::env::EnvSpec;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
-
-/// SAVER's loss constants.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SaverConfig {
-    /// K: quantile copies per transition.
-    pub quantiles: usize,
-    /// κ of the Huber quantile loss; `None` (written 0: the κ → 0 limit): the plain
-    /// quantile loss (paper).
-    #[serde(with = "zero_is_none")]
-    pub kappa: Option<f64>,
-    /// λ_mon, weight of the monotonic penalty.
-    pub lambda_mon: f64,
-    /// λ_c, weight of the vector critic's squared error.
-    pub lambda_critic: f64,
-    /// Normalise the vector advantage per dimension over the batch (zero mean, unit
-    /// std); the paper does not.
-    pub adv_norm: bool,
-    /// With `adv_norm`: divide by one standard deviation over every dimension (each
-    /// dimension still centred) instead of one per dimension, so a dimension whose
-    /// advantages are only noise (a coordinate already at the goal) stays small
-    /// rather than being scaled up to the size of the informative ones.
-    pub adv_norm_joint: bool,
-    /// Weight of a penalty on the mean head's raw output beyond ±[`MU_RAW_LIMIT`]:
-    /// `w · Σ_j mean_batch relu(|raw_j| − limit)²`. With μ = tanh(raw), a mean pushed
-    /// deep into saturation gets no gradient back (tanh' ≈ 0) and stays there; on
-    /// angle that freezes a pair's direction at 0 or π, so one of its coordinates can
-    /// no longer move. 0: off (the paper).
-    pub mu_raw_penalty: f64,
-    /// The mean entries (0-based) [`Self::mu_raw_penalty`] applies to; empty: all. On
-    /// angle the odd entries are the pairs' angles, whose bounds are the poles that
-    /// trap a pair, while the even ones (step sizes) belong at their bounds far from
-    /// the goal.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub mu_raw_penalty_entries: Vec<usize>,
-    /// Standalone QRRL: half-width s of the fixed base quantile function s·(2τ − 1)
-    /// added to the policy network's output, so that the initial policy is U(−s, s)
-    /// (the network starts near 0 everywhere, which would not explore). Not used by
-    /// SAVER.
-    #[serde(default)]
-    pub qrrl_spread: f64,
-    /// Standalone QRRL's vector variant: a vector critic V(o) ∈ R^d on the vector reward,
-    /// and coordinate j's advantage weighs action dim j; only for envs whose actions
-    /// are aligned with their coordinates ([`crate::env::EnvSpec::actions_aligned`]).
-    #[serde(default)]
-    pub qrrl_vector: bool,
-    /// Where the actor loss takes its target from: the observed Δp (the paper) or the
-    /// PCPN's prediction for the action taken (docs/ALGORITHM.md §7.1).
-    #[serde(default)]
-    pub target: DeltaTarget,
-    /// Learning rate of the PCPN's own training on the policy's steps during the run
-    /// (one pretraining step per update on the batch's [o, μ, log σ] → Δp;
-    /// docs/ALGORITHM.md §7.1). 0: the PCPN stays frozen (the paper).
-    #[serde(default)]
-    pub pcpn_tune_lr: f64,
-    /// Passes over each batch, each in shuffled minibatches of [`Self::minibatch_size`]
-    /// steps, every minibatch one optimiser step (docs/ALGORITHM.md §7.1). 1 with one
-    /// minibatch: one step per batch (the paper).
-    #[serde(default = "one_pass")]
-    pub epochs: usize,
-    /// Steps per minibatch of [`Self::epochs`]; 0: the whole batch.
-    #[serde(default)]
-    pub minibatch_size: usize,
-    /// λ of the vector advantage: GAE(λ) per coordinate on the vector critic, the
-    /// critic's target A + V (docs/ALGORITHM.md §6). 1: the n-step returns of the
-    /// rollout (the paper).
-    #[serde(default = "no_trace_decay")]
-    pub gae_lambda: f64,
-    /// A trust region for [`Self::epochs`]' passes: before each minibatch step after
-    /// the first, the passes over the batch stop once the minibatch's approximate
-    /// KL(behaviour ‖ current policy), mean((ρ − 1) − log ρ) over its steps' actions, is
-    /// above this (cleanrl's and SB3's `target_kl`; docs/ALGORITHM.md §7.1). 0: off.
-    #[serde(default)]
-    pub target_kl: f64,
-    /// Weight w of the env-return term (docs/ALGORITHM.md §7.2): where the actors send
-    /// the env's own scalar reward and it is not the progress reward, a scalar critic
-    /// learns its return and the agent also takes −w·mean(Â_r·log π), Â_r normalised
-    /// over the batch. 0: off (the paper, and every preset).
-    #[serde(default)]
-    pub env_reward: f64,
-}
-
-fn no_trace_decay() -> f64 {
-    1.0
-}
-
-fn one_pass() -> usize {
-    1
-}
-
-impl SaverConfig {
-    /// Minibatches per pass over a batch of `b` steps: ⌈b / minibatch_size⌉ of (nearly)
-    /// equal size, 1 with `minibatch_size` 0.
-    pub fn minibatches(&self, b: usize) -> usize {
-        match self.minibatch_size {
-            0 => 1,
-            m => b.div_ceil(m).max(1),
-        }
-    }
-
-    /// One optimiser step on the whole batch per update (the paper's update).
-    pub fn one_step(&self, b: usize) -> bool {
-        self.epochs == 1 && self.minibatches(b) == 1
-    }
-}
 
 fn one() -> f64 {
     1.0
@@ -238,6 +138,10 @@ pub struct RunConfig {
     pub hidden: Vec<usize>,
     /// SAVER constants.
     pub saver: SaverConfig,
+    /// Standalone QRRL's settings (a config.toml written when they sat in `[saver]`
+    /// reads into this section: [`upgrade`]).
+    #[serde(default)]
+    pub qrrl: QrrlConfig,
     /// PPO constants (a config.toml written before PPO existed reads as the defaults).
     #[serde(default)]
     pub ppo: PpoConfig,
@@ -249,11 +153,6 @@ pub struct RunConfig {
     pub pcpn_sha256: Option<String>,
 }
 
-/// QRRL's [`SaverConfig::qrrl_spread`] by default: the initial policy is U(−1, 1), the
-/// env's whole action range (with 0.637, the spread of the Gaussian's initial σ = e⁻¹,
-/// the bandit's optima at ±0.75 lay outside it and seed 0 settled on the decoy;
-/// docs/ALGORITHM.md §14).
-pub const QRRL_SPREAD: f64 = 1.0;
 /// PCPN pretraining batches by default (the paper's: 100,000 for angle).
 pub const RECOMMENDED_PRETRAIN_BATCHES: u64 = 5_000;
 /// Async mode's policy lag unless set.
@@ -300,8 +199,6 @@ impl RunConfig {
                 adv_norm_joint: false,
                 mu_raw_penalty: 0.0,
                 mu_raw_penalty_entries: Vec::new(),
-                qrrl_spread: QRRL_SPREAD,
-                qrrl_vector: false,
                 target: DeltaTarget::Observed,
                 pcpn_tune_lr: 0.0,
                 epochs: 1,
@@ -310,6 +207,7 @@ impl RunConfig {
                 target_kl: 0.0,
                 env_reward: 0.0,
             },
+            qrrl: QrrlConfig::default(),
             ppo: PpoConfig::default(),
             pretrain: PretrainConfig::paper(preset_or_angle(env)).for_env(env),
             pcpn_sha256: None,
@@ -362,19 +260,7 @@ impl RunConfig {
                 return bad("grad_clip", format!("{c} must be > 0 (inf: no clipping)"));
             }
         }
-        if let Some(b) = self.head.mu_bound {
-            if !(b.is_finite() && b > 0.0) {
-                return bad("head.mu_bound", format!("{b} must be > 0 (inf: unbounded)"));
-            }
-        }
-        if let Some((lo, hi)) = self.head.log_std_bounds {
-            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
-                return bad(
-                    "head.log_std_min, head.log_std_max",
-                    format!("[{lo}, {hi}] is not an interval (-inf and inf: unbounded)"),
-                );
-            }
-        }
+        self.head.validate()?;
         self.check_hidden()?;
         if self.max_episode_steps == 0 {
             return bad("max_episode_steps", "must be >= 1".into());
@@ -410,87 +296,8 @@ impl RunConfig {
                 return bad(field, format!("{v} must be finite and > 0"));
             }
         }
-        let s = &self.saver;
-        if !(1..=1024).contains(&s.quantiles) {
-            return bad(
-                "saver.quantiles",
-                format!("{} is not in 1..=1024", s.quantiles),
-            );
-        }
-        if let Some(k) = s.kappa {
-            if !(k.is_finite() && k > 0.0) {
-                return bad("saver.kappa", format!("{k} must be >= 0 (0: plain loss)"));
-            }
-        }
-        for (field, v) in [
-            ("saver.lambda_mon", s.lambda_mon),
-            ("saver.lambda_critic", s.lambda_critic),
-            ("saver.mu_raw_penalty", s.mu_raw_penalty),
-            ("saver.qrrl_spread", s.qrrl_spread),
-            ("saver.pcpn_tune_lr", s.pcpn_tune_lr),
-            ("saver.env_reward", s.env_reward),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(field, format!("{v} must be finite and >= 0"));
-            }
-        }
-        if !(0.0..=1.0).contains(&s.gae_lambda) {
-            return bad(
-                "saver.gae_lambda",
-                format!("{} is not in [0, 1]", s.gae_lambda),
-            );
-        }
-        if !(s.target_kl.is_finite() && s.target_kl >= 0.0) {
-            return bad(
-                "saver.target_kl",
-                format!("{} must be finite and >= 0 (0: off)", s.target_kl),
-            );
-        }
-        if s.target_kl > 0.0 && s.epochs == 1 && s.minibatch_size == 0 {
-            return bad(
-                "saver.target_kl",
-                "stops the passes of saver.epochs over minibatches of \
-                 saver.minibatch_size; with one step on the whole batch there is nothing to stop"
-                    .into(),
-            );
-        }
-        if !(1..=1000).contains(&s.epochs) {
-            return bad("saver.epochs", format!("{} is not in 1..=1000", s.epochs));
-        }
-        if s.minibatch_size > 1 << 20 {
-            return bad(
-                "saver.minibatch_size",
-                format!(
-                    "{} is not in 0..=1048576 (0: the whole batch)",
-                    s.minibatch_size
-                ),
-            );
-        }
-        if s.target != DeltaTarget::Observed && self.env.layout().choices > 0 {
-            return bad(
-                "saver.target",
-                "predicted and noise need an env without a categorical choice (its action \
-                 noise has no rank along the position change); use observed"
-                    .into(),
-            );
-        }
-        if !s.mu_raw_penalty_entries.is_empty() {
-            let n = self.env.layout().mu_dim();
-            let field = "saver.mu_raw_penalty_entries";
-            if s.mu_raw_penalty == 0.0 {
-                return bad(field, "set without saver.mu_raw_penalty (> 0)".into());
-            }
-            if let Some(e) = s.mu_raw_penalty_entries.iter().find(|&&e| e >= n) {
-                return bad(
-                    field,
-                    format!("entry {e}: {} has {n} mean entries (0..{n})", self.env),
-                );
-            }
-            let unique: std::collections::BTreeSet<_> = s.mu_raw_penalty_entries.iter().collect();
-            if unique.len() != s.mu_raw_penalty_entries.len() {
-                return bad(field, "an entry is listed twice".into());
-            }
-        }
+        self.saver.validate(&self.env)?;
+        self.qrrl.validate()?;
         self.ppo.validate()?;
         self.pretrain.validate()?;
         self.pretrain.check_env(&self.env)?;
@@ -506,14 +313,12 @@ impl RunConfig {
                 );
             }
         }
-        if self.saver.qrrl_vector && !(self.algo == Algo::Qrrl && self.env.actions_aligned()) {
+        if self.qrrl.vector && self.algo != Algo::Qrrl {
             return bad(
-                "saver.qrrl_vector",
+                "qrrl.vector",
                 format!(
-                    "the vector variant is standalone QRRL's, on an env whose action dim j \
-                     moves coordinate j (point, bandit); this is {} on {}",
-                    self.algo.name(),
-                    self.env
+                    "the vector variant is standalone QRRL's; this is {}",
+                    self.algo.name()
                 ),
             );
         }

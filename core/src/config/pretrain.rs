@@ -53,10 +53,13 @@ pub const PRETRAIN_EVAL_BATCHES: usize = 16;
 /// "paper" settings are A2C's (the same actor-critic loop, optimiser and rate), and so
 /// are PPO's.
 pub fn paper_lr(kind: EnvKind, algo: Algo) -> f64 {
+    // The paper ran SAVER and A2C: an algorithm with a PCPN takes SAVER's column, any
+    // other A2C's, so a new algorithm needs no line here.
     let p = kind.preset();
-    match algo {
-        Algo::Saver => p.paper_saver_lr,
-        Algo::A2c | Algo::Qrrl | Algo::Ppo => p.paper_a2c_lr,
+    if algo.has_pcpn() {
+        p.paper_saver_lr
+    } else {
+        p.paper_a2c_lr
     }
 }
 

@@ -159,10 +159,17 @@ pub struct SaverSettings {
     #[arg(id = "saver_env_reward", value_name = "W", long = "saver-env-reward", allow_hyphen_values = true, help = help("SAVER: weight of the env-return term, a scalar critic and policy gradient on the env's own reward where the actors send one that is not the progress reward (0: off, the paper)", "saver.env_reward"))]
     #[serde(rename = "env_reward")]
     pub saver_env_reward: Option<f64>,
-    #[arg(long, allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "saver.qrrl_spread"))]
-    pub qrrl_spread: Option<f64>,
-    #[arg(long, help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "saver.qrrl_vector"))]
-    pub qrrl_vector: Option<bool>,
+}
+
+/// Standalone QRRL's settings: `[qrrl]` in a file (a file of an earlier version with
+/// them in `[saver]` is read too: [`crate::config::upgrade`]).
+#[derive(Args, Serialize, Deserialize, Clone, Debug, Default, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct QrrlSettings {
+    #[arg(id = "qrrl_spread", value_name = "S", long = "qrrl-spread", allow_hyphen_values = true, help = help("QRRL: half-width s of the base quantile function s·(2τ − 1) added to the policy's output (its initial policy is U(−s, s))", "qrrl.spread"))]
+    pub spread: Option<f64>,
+    #[arg(id = "qrrl_vector", value_name = "BOOL", long = "qrrl-vector", help = help("QRRL: vector critic and per-coordinate advantages on each aligned action dim (envs point, bandit)", "qrrl.vector"))]
+    pub vector: Option<bool>,
 }
 
 /// PPO's constants: `[ppo]` in a file.
@@ -261,6 +268,10 @@ pub struct RunSettings {
     #[command(flatten)]
     #[serde(default)]
     pub saver: SaverSettings,
+    /// Standalone QRRL's settings.
+    #[command(flatten)]
+    #[serde(default)]
+    pub qrrl: QrrlSettings,
     /// PPO's constants.
     #[command(flatten)]
     #[serde(default)]
@@ -327,8 +338,12 @@ impl RunSettings {
     pub fn read(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| config_err(format!("reading config file {}: {e}", path.display())))?;
-        toml::from_str(&text)
-            .map_err(|e| config_err(format!("config file {}: {e}", path.display())))
+        let bad = |e: String| config_err(format!("config file {}: {e}", path.display()));
+        let mut top: toml::Table = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        crate::config::upgrade::upgrade_toml(&mut top);
+        toml::Value::Table(top)
+            .try_into()
+            .map_err(|e: toml::de::Error| bad(e.to_string()))
     }
 
     /// Flags over the `--config` file over the defaults, validated.

@@ -1,4 +1,4 @@
-//! The predicted target and the signal statistics (saver_signal.rs): the predicted
+//! The predicted target and the signal statistics (signal.rs): the predicted
 //! target makes SAVER's update blind to an error in the observed change, the observed
 //! one does not, and the statistics tell the two cases apart.
 
