@@ -3,7 +3,9 @@ weights (safetensors): one forward pass for a batch of observations (one per env
 They follow the `architecture` text each weights file carries and are held to the
 Rust actors' policies by tests/python/test_saver_actor.py (through `saver act`).
 
-gaussian-mlp (A2C, SAVER, PPO): mu = MLP(obs) (the run's hidden widths, 256-128-64 by
+gaussian-mlp (A2C, SAVER, PPO): mu = MLP(x) with x = obs, or
+clip((obs - agent.obs_mean) / agent.obs_std, -10, 10) when the weights carry that
+observation normaliser (PPO's ppo.obs_norm) (the run's hidden widths, 256-128-64 by
 default, ReLU; as many agent.l{i} layers as the weights hold), bounded by
 mu_bound * tanh when mu_bound is finite; log_std = clamp(agent.log_std); continuous
 action = mu + exp(log_std) * N(0, 1); a choice ~ softmax(logits) as a one-hot.
@@ -59,9 +61,23 @@ class Gaussian:
         self.log_std = np.clip(log_std, np.float32(lo), np.float32(hi)) if bounded else log_std
         self.sigma = np.exp(self.log_std)
         self.payload_width = 2 * self.c + self.ch
+        self.obs_norm: Optional[Tuple[np.ndarray, np.ndarray]] = None
+        if ("agent.obs_mean" in tensors) != ("agent.obs_std" in tensors):
+            raise ValueError("the weights hold one of agent.obs_mean and agent.obs_std without the other")
+        if "agent.obs_mean" in tensors:
+            mean = tensors["agent.obs_mean"].astype(np.float32)
+            std = tensors["agent.obs_std"].astype(np.float32)
+            if mean.shape != (layout.obs_dim,) or std.shape != (layout.obs_dim,):
+                raise ValueError("the observation normaliser does not fit the env layout")
+            if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(std)) and np.all(std > 0)):
+                raise ValueError("agent.obs_mean must be finite and agent.obs_std finite and > 0")
+            self.obs_norm = (mean, std)
 
     def mean(self, obs: np.ndarray) -> np.ndarray:
         h = np.asarray(obs, dtype=np.float32)
+        if self.obs_norm is not None:
+            m, s = self.obs_norm
+            h = np.clip((h - m) / s, np.float32(-10.0), np.float32(10.0))
         for i, (w, b) in enumerate(self.layers):
             h = h @ w + b
             if i < self.hidden:

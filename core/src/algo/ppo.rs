@@ -24,6 +24,7 @@ use crate::{checkpoint, Result};
 use candle_core::backprop::GradStore;
 use candle_core::{Device, Tensor};
 use minibatch::{Minibatch, Totals};
+use normalize::Normalizers;
 use rand::seq::SliceRandom;
 use saver_proto::NamedTensor;
 
@@ -69,6 +70,9 @@ pub struct Ppo {
     threads: usize,
     /// Device.
     dev: Device,
+    /// The observation and reward normalisers (`ppo.obs_norm`, `ppo.reward_norm`) and
+    /// the reward learnt from (normalize.rs).
+    norm: Normalizers,
 }
 
 /// PPO's learning rate (Adam; Stable-Baselines3's).
@@ -161,12 +165,13 @@ impl Ppo {
             path: GradPath::for_device(dev),
             threads: 0,
             dev: dev.clone(),
+            norm: Normalizers::new(&config.ppo, layout.obs_dim, config.gamma),
         })
     }
 
     /// The per-step advantages (summed over the critic's outputs), the returns
     /// R = A + V_old ([B, c]) and V_old ([B, c]).
-    fn advantages(&self, batch: &Batch) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+    fn advantages(&mut self, batch: &Batch) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
         let (b, c) = (batch.len(), self.c);
         let (rows, k) = update_rows(
             batch,
@@ -176,11 +181,7 @@ impl Ppo {
         )?;
         let v_all = self.critic.forward(&rows)?.detach(); // [B + T + k, c]
         let values = v_all.narrow(0, 0, b)?.flatten_all()?.to_vec1::<f32>()?;
-        let rewards = if c == 1 {
-            batch.scalar_reward()
-        } else {
-            batch.vector_reward.clone()
-        };
+        let rewards = self.norm.rewards(batch, c)?;
         let lambda = self.cfg.gae_lambda as f32;
         let (adv, returns) = batch_gae(batch, &rewards, &values, &v_all, k, self.gamma, lambda)?;
         let step_adv = adv.chunks_exact(c).map(|a| a.iter().sum()).collect();
@@ -438,15 +439,20 @@ impl Algorithm for Ppo {
     /// weights, optimiser slots, step count and shuffle stream of the update's start.
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let before = self.save_state()?;
-        let result = self.epochs(batch);
-        if result.is_err() {
-            self.restore_state(&|name| before.get(name), &before.numbers)?;
+        // With `ppo.obs_norm`, the update reads what the actors' policy read.
+        let normalized = self.norm.observations(batch);
+        let result = self.epochs(normalized.as_ref().unwrap_or(batch));
+        match &result {
+            Err(_) => self.restore_state(&|name| before.get(name), &before.numbers)?,
+            Ok(_) => self.norm.learn_observations(batch),
         }
         result
     }
 
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
-        checkpoint::to_named_all(&self.agent.params().tensors()?)
+        let mut t = checkpoint::to_named_all(&self.agent.params().tensors()?)?;
+        t.extend(self.norm.weights());
+        Ok(t)
     }
 
     fn optimizer_steps(&self) -> u64 {
@@ -463,7 +469,9 @@ impl Algorithm for Ppo {
 
     fn save_state(&self) -> Result<super::AlgoState> {
         let nets = [self.agent.params(), self.critic.params()];
-        super::nets_state(&nets, &self.opt, Some(&self.rng))
+        let mut state = super::nets_state(&nets, &self.opt, Some(&self.rng))?;
+        state.tensors.extend(self.norm.state()?);
+        Ok(state)
     }
 
     fn restore_state(
@@ -472,11 +480,13 @@ impl Algorithm for Ppo {
         numbers: &std::collections::BTreeMap<String, u128>,
     ) -> Result<()> {
         let nets = [self.agent.params(), self.critic.params()];
-        super::restore_nets(&nets, &mut self.opt, Some(&mut self.rng), get, numbers)
+        super::restore_nets(&nets, &mut self.opt, Some(&mut self.rng), get, numbers)?;
+        self.norm.restore(get)
     }
 }
 
 mod fast;
 mod minibatch;
+mod normalize;
 #[cfg(test)]
 mod tests;

@@ -31,6 +31,20 @@ pub struct PpoConfig {
     /// step's advantage the sum over coordinates (instead of one critic on the summed
     /// reward).
     pub vector: bool,
+    /// Normalise observations by a running mean and variance (SB3's `VecNormalize`,
+    /// which RL Zoo's tuned settings use): the statistics travel with the weights
+    /// (`nets::obs_norm`). A config.toml written before it reads as off.
+    #[serde(default)]
+    pub obs_norm: bool,
+    /// Scale rewards by a running standard deviation of the discounted return (SB3's
+    /// `VecNormalize(norm_reward=True)`), clipped to ±10.
+    #[serde(default)]
+    pub reward_norm: bool,
+    /// Learn from the env's own scalar reward (what a Python actor sends beside the
+    /// progress reward; Reacher's is −distance − control cost) instead of the progress
+    /// reward's sum. A batch without it is refused.
+    #[serde(default)]
+    pub env_reward: bool,
 }
 
 impl Default for PpoConfig {
@@ -44,6 +58,9 @@ impl Default for PpoConfig {
             entropy_coef: 0.0,
             adv_norm: true,
             vector: false,
+            obs_norm: false,
+            reward_norm: false,
+            env_reward: false,
         }
     }
 }
@@ -88,6 +105,14 @@ impl PpoConfig {
             if !(v.is_finite() && v > 0.0) {
                 return bad("value_clip", format!("{v} must be > 0 (0: unclipped)"));
             }
+        }
+        if self.env_reward && self.vector {
+            return bad(
+                "env_reward",
+                "the env's reward is one number a step; a vector critic (ppo.vector) learns \
+                 the vector reward"
+                    .into(),
+            );
         }
         if !(self.entropy_coef.is_finite() && self.entropy_coef >= 0.0) {
             return bad(

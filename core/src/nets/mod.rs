@@ -3,6 +3,7 @@
 
 mod agent;
 mod critic;
+pub mod obs_norm;
 mod pcpn;
 mod policy;
 mod quantile_policy;

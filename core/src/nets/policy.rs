@@ -189,7 +189,8 @@ impl PolicyFamily for Gaussian {
     fn architecture(&self) -> String {
         let l = &self.layout;
         format!(
-            "h0 = obs[{o}]; h(i+1) = relu(h(i) @ agent.l(i).w + agent.l(i).b) for each stored \
+            "h0 = obs[{o}], or clip((obs - agent.obs_mean) / agent.obs_std, -10, 10) when the \
+             weights hold both (an observation normaliser); h(i+1) = relu(h(i) @ agent.l(i).w + agent.l(i).b) for each stored \
              agent.l(i) in turn, i = 0 .. L-1 (w stored [in, out]; the run's hidden widths, \
              {t:?} by default); raw = h(L) @ agent.mu.w + agent.mu.b [{m}]; \
              mu = mu_bound * tanh(raw) if mu_bound is finite, else raw; \
@@ -252,6 +253,9 @@ pub struct Policy {
     layers: Vec<Layer>,
     /// Index of `agent.log_std`.
     log_std: usize,
+    /// Indices of the observation normaliser's mean and std, when the weights carry one
+    /// (obs_norm.rs).
+    obs_norm: Option<(usize, usize)>,
     /// The env layout.
     layout: EnvLayout,
     /// Output bounds, as in training.
@@ -284,10 +288,12 @@ impl Policy {
             fan_in = fan_out;
         }
         let log_std = find("agent.log_std", &[layout.log_std_dim()])?;
+        let obs_norm = super::obs_norm::find_in(&weights, layout.obs_dim)?;
         Ok(Self {
             weights,
             layers,
             log_std,
+            obs_norm,
             layout,
             head,
             buf: [Vec::new(), Vec::new()],
@@ -299,6 +305,10 @@ impl Policy {
         let [a, b] = &mut self.buf;
         a.clear();
         a.extend_from_slice(obs);
+        if let Some((m, s)) = self.obs_norm {
+            let t = &self.weights.tensors;
+            super::obs_norm::normalize(a, &t[m].data, &t[s].data);
+        }
         let last = self.layers.len() - 1;
         for (li, l) in self.layers.iter().enumerate() {
             let (w, bias) = (

@@ -192,6 +192,12 @@ pub struct PpoSettings {
     pub adv_norm: Option<bool>,
     #[arg(id = "ppo_vector", value_name = "BOOL", long = "ppo-vector", help = help("PPO: a vector critic on the vector reward, GAE per coordinate, the advantage their sum", "ppo.vector"))]
     pub vector: Option<bool>,
+    #[arg(id = "ppo_obs_norm", value_name = "BOOL", long = "ppo-obs-norm", help = help("PPO: normalise observations by a running mean and variance, carried in the weights (SB3's VecNormalize)", "ppo.obs_norm"))]
+    pub obs_norm: Option<bool>,
+    #[arg(id = "ppo_reward_norm", value_name = "BOOL", long = "ppo-reward-norm", help = help("PPO: scale rewards by a running std of the discounted return, clipped to ±10 (SB3's VecNormalize)", "ppo.reward_norm"))]
+    pub reward_norm: Option<bool>,
+    #[arg(id = "ppo_env_reward", value_name = "BOOL", long = "ppo-env-reward", help = help("PPO: learn from the env's own reward (a Python actor's env) instead of the progress reward", "ppo.env_reward"))]
+    pub env_reward: Option<bool>,
 }
 
 /// Every setting of a run, each optional: flags, or a `--config` file (the same names

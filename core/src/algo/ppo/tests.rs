@@ -276,7 +276,7 @@ fn the_fast_step_gives_candle_autograds_gradients() {
         if !bounded {
             cfg.head = crate::config::HeadConfig::FAITHFUL;
         }
-        let ppo = Ppo::new(&cfg, &Device::Cpu).unwrap();
+        let mut ppo = Ppo::new(&cfg, &Device::Cpu).unwrap();
         let batch = on_policy_batch(&ppo, 9);
         let (advantage, returns, values) = ppo.advantages(&batch).unwrap();
         let mut rng = rng_for(9, 78);
@@ -348,4 +348,156 @@ fn a_layout_with_a_choice_takes_the_reference_step() {
     let before = values(ppo.save_state().unwrap().tensors);
     ppo.update(&batch).unwrap();
     assert_ne!(before, values(ppo.save_state().unwrap().tensors));
+}
+
+/// `ppo.reward_norm` scales as SB3's VecNormalize does over its envs, step by step.
+/// The numbers: SB3's RunningMeanStd and `VecNormalize.step_wait` in numpy on the same
+/// rewards (2 trajectories × 3 steps, γ 0.9, trajectory 0's episode ending at step 1):
+/// scaled [[2.49953, -2.54471, 0.75376], [0.49991, 0.50894, -0.90451]], and after
+/// them mean 0.183664, var 0.440024, count 6.0001, returns [0.5, -0.078].
+#[test]
+fn reward_norm_scales_as_vecnormalize() {
+    let mut c = config(1, 8, 0.2);
+    c.ppo.reward_norm = true;
+    c.gamma = 0.9;
+    crate::algo::validate(&c).unwrap();
+    let l = c.env.layout();
+    let done = vec![false, true, false, false, false, false];
+    let mut batch = random_batch(&l, 2, 3, 5, 1.0, done);
+    let r = [1.0f32, -2.0, 0.5, 0.2, 0.4, -0.6];
+    // The scalar reward is the vector reward's sum: put it all in coordinate 0.
+    batch.vector_reward = r.iter().flat_map(|&v| [v, 0.0]).collect();
+    let mut n = Normalizers::new(&c.ppo, l.obs_dim, c.gamma);
+    let got = n.rewards(&batch, 1).unwrap();
+    let want = [
+        2.499531, -2.544706, 0.7537580, 0.4999063, 0.5089412, -0.9045096,
+    ];
+    for (g, w) in got.iter().zip(want) {
+        assert!((g - w).abs() < 1e-5, "{got:?} against {want:?}");
+    }
+    let state = n.state().unwrap();
+    let value = |name: &str| -> Vec<f64> {
+        let t = &state.iter().find(|(k, _)| k == name).unwrap().1;
+        t.to_vec1().unwrap()
+    };
+    assert!((value("ppo.reward_norm.mean")[0] - 0.1836636).abs() < 1e-6);
+    assert!((value("ppo.reward_norm.var")[0] - 0.4400238).abs() < 1e-6);
+    assert!((value("ppo.reward_norm.count")[0] - 6.0001).abs() < 1e-9);
+    let returns = value("ppo.reward_norm.returns");
+    assert!((returns[0] - 0.5).abs() < 1e-6 && (returns[1] + 0.078).abs() < 1e-6);
+    // Restored into fresh normalisers, the next batch scales the same.
+    let mut again = Normalizers::new(&c.ppo, l.obs_dim, c.gamma);
+    again
+        .restore(&|name| {
+            state
+                .iter()
+                .find(|(k, _)| k == name)
+                .map(|(_, t)| t.clone())
+        })
+        .unwrap();
+    assert_eq!(
+        again.rewards(&batch, 1).unwrap(),
+        n.rewards(&batch, 1).unwrap()
+    );
+}
+
+/// `ppo.env_reward` learns from the env's own reward, and refuses a batch without one.
+#[test]
+fn env_reward_is_the_batchs_or_refused() {
+    let mut c = config(1, 8, 0.2);
+    c.ppo.env_reward = true;
+    crate::algo::validate(&c).unwrap();
+    let l = c.env.layout();
+    let mut batch = random_batch(&l, 2, 3, 5, 1.0, vec![false; 6]);
+    let mut n = Normalizers::new(&c.ppo, l.obs_dim, c.gamma);
+    let err = n.rewards(&batch, 1).unwrap_err().to_string();
+    assert!(err.contains("no env reward"), "{err}");
+    batch.env_reward = vec![-0.5, -0.25, 0.0, 1.0, 2.0, 3.0];
+    assert_eq!(n.rewards(&batch, 1).unwrap(), batch.env_reward);
+    c.ppo.vector = true;
+    let err = crate::algo::validate(&c).unwrap_err().to_string();
+    assert!(err.contains("ppo.env_reward"), "{err}");
+}
+
+/// With `ppo.obs_norm` the weights carry the statistics of the observations seen so
+/// far, the update reads observations normalised by those the actors acted with, the
+/// acting policy normalises by them, and a checkpoint carries them on exactly.
+#[test]
+fn obs_norm_travels_with_the_weights_and_the_checkpoint() {
+    let mut c = config(2, 16, 0.2);
+    c.ppo.obs_norm = true;
+    crate::algo::validate(&c).unwrap();
+    let mut ppo = Ppo::new(&c, &Device::Cpu).unwrap();
+    let find =
+        |t: &[NamedTensor], name: &str| t.iter().find(|x| x.name == name).unwrap().data.clone();
+    let start = ppo.policy_tensors().unwrap();
+    assert_eq!(find(&start, crate::nets::obs_norm::OBS_MEAN), vec![0.0; 2]);
+    // Shift and scale the observations so that normalising matters: entry 0 around 3,
+    // entry 1 spread ×5.
+    let mut batch = on_policy_batch(&ppo, 1);
+    for row in batch.obs.chunks_exact_mut(2) {
+        row[0] = 3.0 + row[0];
+        row[1] *= 5.0;
+    }
+    ppo.update(&batch).unwrap();
+    let after = ppo.policy_tensors().unwrap();
+    let (mean, std) = (
+        find(&after, crate::nets::obs_norm::OBS_MEAN),
+        find(&after, crate::nets::obs_norm::OBS_STD),
+    );
+    let col = |j: usize| {
+        batch
+            .obs
+            .iter()
+            .skip(j)
+            .step_by(2)
+            .map(|&v| v as f64)
+            .collect::<Vec<_>>()
+    };
+    for j in 0..2 {
+        let v = col(j);
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        let s = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+        assert!(
+            (mean[j] as f64 - m).abs() < 1e-3 * m.abs().max(1.0),
+            "{mean:?} against {m}"
+        );
+        assert!((std[j] as f64 - s).abs() < 1e-3 * s, "{std:?} against {s}");
+    }
+    // The acting policy's mean is the agent's on the normalised observation.
+    let weights = std::sync::Arc::new(crate::link::PolicyWeights {
+        version: 1,
+        tensors: after.clone(),
+    });
+    let mut policy = crate::nets::Policy::new(weights, ppo.layout, c.head).unwrap();
+    let o = [2.5f32, -4.0];
+    let mut got = Vec::new();
+    policy.mean(&o, &mut got);
+    let normed: Vec<f32> = o
+        .iter()
+        .zip(&mean)
+        .zip(&std)
+        .map(|((o, m), s)| (o - m) / s)
+        .collect();
+    let out = ppo
+        .agent
+        .forward(&Tensor::from_slice(&normed, (1, 2), &Device::Cpu).unwrap())
+        .unwrap();
+    let want: Vec<f32> = out.mu.flatten_all().unwrap().to_vec1().unwrap();
+    for (g, w) in got.iter().zip(&want) {
+        assert!((g - w).abs() < 1e-5, "{got:?} against {want:?}");
+    }
+    // Resumed from its state, a run takes the next update exactly as one that went on.
+    let saved = ppo.save_state().unwrap();
+    let mut resumed = Ppo::new(&c, &Device::Cpu).unwrap();
+    resumed
+        .restore_state(&|n| saved.get(n), &saved.numbers)
+        .unwrap();
+    let next = on_policy_batch(&ppo, 2);
+    ppo.update(&next).unwrap();
+    resumed.update(&next).unwrap();
+    assert_eq!(
+        ppo.policy_tensors().unwrap(),
+        resumed.policy_tensors().unwrap()
+    );
 }

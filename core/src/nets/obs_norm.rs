@@ -1,0 +1,175 @@
+//! Observation normalisation, as Stable-Baselines3's `VecNormalize` does it: a running
+//! mean and variance of every observation entry, and x = clip((o − mean)/√(var + 1e-8),
+//! ±10) in front of the policy. The learner keeps the statistics (PPO's
+//! `ppo.obs_norm`); they travel with the policy's weights as [`OBS_MEAN`] and
+//! [`OBS_STD`], so every client that acts from the weights (the Rust actors, the
+//! Python package, `saver eval`) normalises alike.
+
+use crate::{CoreError, Result};
+use saver_proto::NamedTensor;
+
+/// The weights' tensor of the observation mean, [obs_dim].
+pub const OBS_MEAN: &str = "agent.obs_mean";
+/// The weights' tensor of √(var + 1e-8), [obs_dim].
+pub const OBS_STD: &str = "agent.obs_std";
+/// Normalised observations are clipped to ±this (SB3's `clip_obs`).
+pub const OBS_CLIP: f32 = 10.0;
+/// Added to the variance before the square root (SB3's `epsilon`).
+const VAR_EPS: f64 = 1e-8;
+/// The count the statistics start from (SB3's `RunningMeanStd(epsilon=1e-4)`), so the
+/// first batch's moments take over almost entirely.
+const COUNT0: f64 = 1e-4;
+
+/// A running mean and variance per entry, merged batch by batch (Chan et al.'s
+/// parallel formula, as SB3's `RunningMeanStd.update_from_moments`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunningStats {
+    /// Samples seen (starting at 1e-4).
+    pub count: f64,
+    /// Mean of each entry.
+    pub mean: Vec<f64>,
+    /// Population variance of each entry.
+    pub var: Vec<f64>,
+}
+
+impl RunningStats {
+    /// No samples yet: mean 0, variance 1 for `n` entries.
+    pub fn new(n: usize) -> Self {
+        Self {
+            count: COUNT0,
+            mean: vec![0.0; n],
+            var: vec![1.0; n],
+        }
+    }
+
+    /// Merges the rows of `rows` ([k, n] row-major, n = the entries) into the statistics.
+    pub fn update(&mut self, rows: &[f32]) {
+        let n = self.mean.len();
+        let k = rows.len() / n.max(1);
+        if k == 0 {
+            return;
+        }
+        let kf = k as f64;
+        for j in 0..n {
+            let col = rows.iter().skip(j).step_by(n).map(|&v| v as f64);
+            let batch_mean = col.clone().sum::<f64>() / kf;
+            let batch_var = col.map(|v| (v - batch_mean).powi(2)).sum::<f64>() / kf;
+            let total = self.count + kf;
+            let delta = batch_mean - self.mean[j];
+            let m2 =
+                self.var[j] * self.count + batch_var * kf + delta * delta * self.count * kf / total;
+            self.mean[j] += delta * kf / total;
+            self.var[j] = m2 / total;
+        }
+        self.count += kf;
+    }
+
+    /// √(var + 1e-8) of each entry, in f32 (what [`normalize`] divides by).
+    pub fn std(&self) -> Vec<f32> {
+        self.var
+            .iter()
+            .map(|v| (v + VAR_EPS).sqrt() as f32)
+            .collect()
+    }
+
+    /// The mean in f32.
+    pub fn mean_f32(&self) -> Vec<f32> {
+        self.mean.iter().map(|&m| m as f32).collect()
+    }
+
+    /// The two tensors the policy's weights carry.
+    pub fn weights(&self) -> Vec<NamedTensor> {
+        let n = self.mean.len();
+        vec![
+            NamedTensor {
+                name: OBS_MEAN.into(),
+                shape: vec![n],
+                data: self.mean_f32(),
+            },
+            NamedTensor {
+                name: OBS_STD.into(),
+                shape: vec![n],
+                data: self.std(),
+            },
+        ]
+    }
+}
+
+/// Normalises observations `obs` ([k, n] row-major) in place: clip((o − mean)/std, ±10).
+pub fn normalize(obs: &mut [f32], mean: &[f32], std: &[f32]) {
+    let n = mean.len();
+    for row in obs.chunks_exact_mut(n.max(1)) {
+        for ((o, &m), &s) in row.iter_mut().zip(mean).zip(std) {
+            *o = ((*o - m) / s).clamp(-OBS_CLIP, OBS_CLIP);
+        }
+    }
+}
+
+/// The indices of [`OBS_MEAN`] and [`OBS_STD`] in a policy's weights when it carries
+/// both (each [obs_dim], the std finite and > 0); `None` when it carries neither.
+pub(crate) fn find_in(
+    weights: &crate::acting::PolicyWeights,
+    obs_dim: usize,
+) -> Result<Option<(usize, usize)>> {
+    let at = |name: &str| weights.tensors.iter().position(|t| t.name == name);
+    match (at(OBS_MEAN), at(OBS_STD)) {
+        (None, None) => Ok(None),
+        (Some(_), Some(_)) => {
+            let m = super::weight_index(weights, OBS_MEAN, &[obs_dim])?;
+            let s = super::weight_index(weights, OBS_STD, &[obs_dim])?;
+            let finite = weights.tensors[m].data.iter().all(|v| v.is_finite());
+            if !finite
+                || weights.tensors[s]
+                    .data
+                    .iter()
+                    .any(|&v| !(v.is_finite() && v > 0.0))
+            {
+                return Err(CoreError::Checkpoint(format!(
+                    "weights {OBS_MEAN} must be finite and {OBS_STD} finite and > 0"
+                )));
+            }
+            Ok(Some((m, s)))
+        }
+        _ => Err(CoreError::Checkpoint(format!(
+            "weights hold one of {OBS_MEAN} and {OBS_STD} without the other"
+        ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two batches merged equal one batch of all their rows (the population moments
+    /// of the rows, up to the 1e-4 starting count).
+    #[test]
+    fn merged_batches_give_the_moments_of_all_rows() {
+        // Entry 0: 1, 2, 3, 4, 5, 6 (mean 3.5, population variance 35/12 = 2.9167);
+        // entry 1: 10 each (mean 10, variance 0).
+        let rows = [
+            1.0, 10.0, 2.0, 10.0, 3.0, 10.0, 4.0, 10.0, 5.0, 10.0, 6.0, 10.0,
+        ];
+        let mut s = RunningStats::new(2);
+        s.update(&rows[..4]);
+        s.update(&rows[4..]);
+        assert!((s.count - 6.0001).abs() < 1e-12);
+        // The starting count 1e-4 at mean 0, variance 1 pulls each moment by ~1e-4/6.
+        assert!((s.mean[0] - 3.5).abs() < 1e-3, "{:?}", s.mean);
+        assert!((s.var[0] - 35.0 / 12.0).abs() < 1e-3, "{:?}", s.var);
+        // Entry 1 has no spread of its own; its variance is the starting count's pull:
+        // (1e-4·1 + 10²·1e-4·6/6.0001)/6.0001 = 1.68328e-3.
+        assert!((s.mean[1] - 10.0).abs() < 1e-3, "{s:?}");
+        assert!((s.var[1] - 1.68328e-3).abs() < 1e-7, "{s:?}");
+        let mut obs = [3.5f32, 10.0, 100.0, -100.0];
+        normalize(&mut obs, &s.mean_f32(), &s.std());
+        assert!(obs[0].abs() < 1e-3, "{obs:?}");
+        // Entry 1's variance is ~2e-3 (the starting count's pull): 90/√2e-3 is far
+        // beyond the clip, as is (100 − 3.5)/1.71 = 56.5.
+        assert_eq!(obs[2], OBS_CLIP);
+        assert_eq!(obs[3], -OBS_CLIP);
+        // An empty batch changes nothing.
+        let before = s.clone();
+        s.update(&[]);
+        assert_eq!(s, before);
+    }
+}
