@@ -222,7 +222,7 @@ def main():
         label = "saver (top level)" if crate == "." else crate
         print(f"{label}: {len(c.files)} modules, {len(edges)} arrows, {len(found)} circle(s)")
         if show_all:
-            for (a, b), files in sorted(edges.items()):
+            for (a, b), _files in sorted(edges.items()):
                 print(f"    {name(a)} -> {name(b)}")
         for comp in found:
             print(f"  {sorted(name(x) for x in comp)}")
