@@ -1,0 +1,58 @@
+#!/bin/bash
+# The side-by-side of issue 55 on Reacher-v5, one run of each per seed at equal env
+# steps, every one evaluated the same way (50 deterministic episodes, success and the
+# env's own return; saver_actor.evaluate.scored_episodes), with curves:
+#   saver      SAVER at its custom-env default
+#   ppo-tuned  our PPO at RL Zoo's tuned Reacher settings (VecNormalize's obs and
+#              reward normalisation, n_steps 512 x 8 envs, batch 32, 5 epochs, γ 0.9,
+#              λ 1, lr 1.04e-4, clip 0.3, vf 0.95, grad norm 0.9, 64-64) on the env's reward
+#   a2c        our A2C at its custom-env default
+#   sb3-ppo    Stable-Baselines3 PPO at the same RL Zoo settings (bench/sb3_tuned.py)
+#   sb3-sac    Stable-Baselines3 SAC at its defaults
+# then the table and the figure (bench/env_return_table.py).
+#
+#   bench/side_by_side.sh OUT STEPS SEED...      e.g. bench/side_by_side.sh R 1000000 0 1 2 3 4
+# SAVER_PY: a Python with saver_actor and gymnasium[mujoco] (default python3);
+# SB3_PY: one with stable-baselines3, rl_zoo3 and saver_actor (unset: no SB3 rows);
+# ONLY: a space-separated subset of the rows above. Each row's JSON lines go to
+# OUT/<row>.jsonl (appended), its run folders under OUT/<row>/.
+set -euo pipefail
+out=$1; steps=$2; shift 2; seeds=("$@")
+[ ${#seeds[@]} -gt 0 ] || { echo "usage: $0 OUT STEPS SEED..." >&2; exit 2; }
+here=$(cd "$(dirname "$0")" && pwd); root=$(dirname "$here")
+saver=${SAVER_BIN:-$root/target/release/saver}
+py=${SAVER_PY:-python3}
+only=${ONLY:-saver ppo-tuned a2c sb3-ppo sb3-sac}
+curve=$(( steps / 10 ))
+mkdir -p "$out"
+export MUJOCO_GL=${MUJOCO_GL:-egl}
+ppo_tuned="ppo --rollout 512 --ppo-minibatch-size 32 --ppo-epochs 5 --gamma 0.9 --lr 1.04e-4 \
+--entropy-coef 7.5e-8 --ppo-clip 0.3 --gae-lambda 1.0 --grad-clip 0.9 --value-coef 0.95 \
+--ppo-obs-norm true --ppo-reward-norm true --ppo-env-reward true --hidden 64 --hidden 64"
+ours() { # row, algo and flags
+  local row=$1 algo=$2
+  echo "== $row: $steps steps, seeds ${seeds[*]} -> $out/$row.jsonl"
+  "$py" "$here/custom_env_results.py" "$saver" --factory saver_actor.examples:reacher --max-steps 50 \
+    --steps "$steps" --seeds "${seeds[@]}" --algos "$algo" --curve-every "$curve" --out "$out/$row" \
+    | grep '^{' >> "$out/$row.jsonl"
+}
+peer() { # row, sb3_tuned.py algorithm
+  local row=$1 algo=$2
+  if [ -z "${SB3_PY:-}" ]; then echo "== $row: skipped (set SB3_PY to a Python with stable-baselines3)"; return; fi
+  for seed in "${seeds[@]}"; do
+    echo "== $row seed $seed: $steps steps -> $out/$row.jsonl"
+    "$SB3_PY" "$here/sb3_tuned.py" "$algo" --steps "$steps" --seed "$seed" --eval-every "$curve" >> "$out/$row.jsonl"
+  done
+}
+for row in $only; do
+  case $row in
+    saver) ours saver saver ;;
+    ppo-tuned) ours ppo-tuned "$ppo_tuned" ;;
+    a2c) ours a2c a2c ;;
+    sb3-ppo) peer sb3-ppo ppo-zoo ;;
+    sb3-sac) peer sb3-sac sac ;;
+    *) echo "unknown row $row" >&2; exit 2 ;;
+  esac
+done
+"$py" "$here/env_return_table.py" "$out"/*.jsonl --png "$out/curves.png"
+echo "table above; figure: $out/curves.png; runs: $out/"
