@@ -274,7 +274,11 @@ impl Saver {
         if self.cfg.adv_norm {
             normalize_advantages(&mut adv_host, d, self.cfg.adv_norm_joint);
         }
-        if let Some(rule) = &self.at_goal {
+        // Past success, a step at the goal learns only from the env's reward: its
+        // progress is noise around the goal. Where the env term does not run on this
+        // batch (no env reward, or one equal to the progress) the progress is all there
+        // is, and it stays.
+        if let (Some(rule), Some(_)) = (&self.at_goal, &env) {
             let (o, a0) = (self.layout.obs_dim, self.layout.aligned_start);
             for (row, adv) in batch.obs.chunks_exact(o).zip(adv_host.chunks_exact_mut(d)) {
                 if rule.distance(row, &row[a0..a0 + d]) < rule.radius {

@@ -370,7 +370,7 @@ fn reward_norm_scales_as_vecnormalize() {
     let mut n = Normalizers::new(&c.ppo, l.obs_dim, c.gamma);
     let got = n.rewards(&batch, 1).unwrap();
     let want = [
-        2.499531, -2.544706, 0.7537580, 0.4999063, 0.5089412, -0.9045096,
+        2.499531, -2.544706, 0.753758, 0.4999063, 0.5089412, -0.9045096,
     ];
     for (g, w) in got.iter().zip(want) {
         assert!((g - w).abs() < 1e-5, "{got:?} against {want:?}");
@@ -436,7 +436,7 @@ fn obs_norm_travels_with_the_weights_and_the_checkpoint() {
     // entry 1 spread ×5.
     let mut batch = on_policy_batch(&ppo, 1);
     for row in batch.obs.chunks_exact_mut(2) {
-        row[0] = 3.0 + row[0];
+        row[0] += 3.0;
         row[1] *= 5.0;
     }
     ppo.update(&batch).unwrap();

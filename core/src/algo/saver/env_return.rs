@@ -449,23 +449,24 @@ mod tests {
     /// Past success (`continue_past_success`) a step that starts inside the success box
     /// (radius 0.3 around the origin; the rows' p are uniform in [-1, 1]²) has no
     /// vector advantage, and every other row keeps the advantage it has without the
-    /// flag, bit for bit.
+    /// flag, bit for bit. Without the env term (w = 0) nothing is masked.
     #[test]
     fn past_success_the_steps_at_the_goal_have_no_vector_advantage() {
         let (_, l) = saver(0.5);
         let b = batch(&l, |_, i| -0.1 * i as f32);
-        let advantages = |past: bool| {
+        let advantages = |past: bool, w: f64| {
             let rule = crate::env::SuccessRule {
                 radius: 0.3,
                 goal_start: None,
             };
-            let mut config = config(0.5);
+            let mut config = config(w);
             config.env = config.env.clone().with_success(Some(rule)).unwrap();
             config.continue_past_success = past;
             let s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
             s.start(&b).unwrap().adv_host
         };
-        let (free, past) = (advantages(false), advantages(true));
+        let (free, past) = (advantages(false, 0.5), advantages(true, 0.5));
+        assert_eq!(advantages(true, 0.0), advantages(false, 0.0));
         let mut inside = 0;
         for (k, row) in b.obs.chunks_exact(6).enumerate() {
             let at_goal = row[0].abs() < 0.3 && row[1].abs() < 0.3;
