@@ -5,7 +5,8 @@
 #   saver      SAVER at its custom-env default
 #   ppo-tuned  our PPO at RL Zoo's tuned Reacher settings (VecNormalize's obs and
 #              reward normalisation, n_steps 512 x 8 envs, batch 32, 5 epochs, γ 0.9,
-#              λ 1, lr 1.04e-4, clip 0.3, vf 0.95, grad norm 0.9, 64-64) on the env's reward
+#              λ 1, lr 1.04e-4, clip 0.3, vf 0.95, grad norm 0.9, 64-64) on the env's reward,
+#              its episodes going on past success as the peers' do
 #   a2c        our A2C at its custom-env default
 #   sb3-ppo    Stable-Baselines3 PPO at the same RL Zoo settings (bench/sb3_tuned.py)
 #   sb3-sac    Stable-Baselines3 SAC at its defaults
@@ -28,7 +29,8 @@ mkdir -p "$out"
 export MUJOCO_GL=${MUJOCO_GL:-egl}
 ppo_tuned="ppo --rollout 512 --ppo-minibatch-size 32 --ppo-epochs 5 --gamma 0.9 --lr 1.04e-4 \
 --entropy-coef 7.5e-8 --ppo-clip 0.3 --gae-lambda 1.0 --grad-clip 0.9 --value-coef 0.95 \
---ppo-obs-norm true --ppo-reward-norm true --ppo-env-reward true --hidden 64 --hidden 64"
+--ppo-obs-norm true --ppo-reward-norm true --ppo-env-reward true --hidden 64 --hidden 64 \
+--continue-past-success true"
 ours() { # row, algo and flags
   local row=$1 algo=$2
   echo "== $row: $steps steps, seeds ${seeds[*]} -> $out/$row.jsonl"
