@@ -2,8 +2,10 @@
 //! settings use; docs/ALGORITHM.md §15):
 //!
 //! - `ppo.obs_norm`: the update reads observations normalised by the running statistics
-//!   the actors acted with (they travel in the weights, `nets::obs_norm`), and merges
-//!   the batch's raw observations into them after a successful update;
+//!   of the weights it published last (they travel in the weights, `nets::obs_norm`):
+//!   in sync mode exactly those the batch's actors acted with, in async mode those or a
+//!   few versions newer; it merges the batch's raw observations into them after a
+//!   successful update;
 //! - `ppo.reward_norm`: per trajectory, R ← γ·R + r (0 again after a step that ends an
 //!   episode); at each step the trajectories' R update a running variance, and the
 //!   step's reward becomes clip(r / √(var + 1e-8), ±10);

@@ -107,16 +107,24 @@ pub const CUSTOM_SAVER_LOG_STD_MIN: f64 = -0.8;
 /// costs Reacher-v5's control, so the bound stays 1.
 pub const CUSTOM_SAVER_MINIBATCH_SIZE: usize = 128;
 /// The weight of SAVER's env-return term on a custom env (docs/ALGORITHM.md §7.2): its
-/// push on μ and log σ as large as the PCPN term's. The progress reward does not see
+/// push on μ and log σ three times the PCPN term's. The progress reward does not see
 /// what else the env's reward counts (Reacher-v5's control cost). On Reacher-v5 (1 M
-/// steps, 5 seeds) the whole episode's return went from −14.2 / −13.3 (off, seeds 0-1)
-/// to −11.0 … −12.2 and the return up to success from −9.3 / −7.2 to −6.3 … −6.8, at
-/// success 1.00 on every seed, 0.9 success reached at 300-500 k steps;
-/// on the point mass (300 k, seeds 0-2, one PCPN) success stayed 1.00 on every seed at
-/// −13.8 against −13.9 (results/env-return/). A fixed weight (0.3) instead took
-/// Reacher's return further (−7.7) but handed the update to the env term and broke the
-/// point mass (success 4 % at 150 k). Presets send no env reward: the paper's update.
-pub const CUSTOM_SAVER_ENV_REWARD: f64 = 1.0;
+/// steps, episodes going on past success, [`CUSTOM_SAVER_CONTINUE_PAST_SUCCESS`]) the
+/// whole episode's return was −5.4 … −6.2 at w = 1 (3 seeds), −4.6 … −5.1 at w = 2 and
+/// −4.3 … −4.5 at w = 3, success 0.94-0.98; the control cost of the approach falls
+/// as w grows (seed 1: Σa² 4.05 at w = 1, 2.05 at w = 2) while the approach takes a
+/// few steps longer (results/env-return/). Ending episodes at success instead left what
+/// the policy does at the goal untrained: −11.0 … −12.2 at w = 1 over 5 seeds. A fixed
+/// weight (0.3, before the ratio) handed the update to the env term and broke the point
+/// mass (success 4 % at 150 k). Presets send no env reward: the paper's update.
+pub const CUSTOM_SAVER_ENV_REWARD: f64 = 3.0;
+/// Whether a custom env's episodes go on past success by default for SAVER
+/// ([`RunConfig::continue_past_success`]): what the policy does at the goal then costs
+/// what the env charges for it (Reacher-v5: −4.3 … −4.5 over the whole episode against
+/// −11.0 … −12.2 when episodes ended at success), and a step that starts inside the box
+/// learns only from the env's reward. An env without a success radius has no success
+/// to go past; one whose reward is the progress keeps its progress at the goal.
+pub const CUSTOM_SAVER_CONTINUE_PAST_SUCCESS: bool = true;
 
 /// SAVER's defaults over the paper's settings.
 pub(crate) fn recommend(c: &mut RunConfig) {
@@ -141,6 +149,7 @@ pub(crate) fn recommend(c: &mut RunConfig) {
         c.lr_decay = CUSTOM_SAVER_LR_DECAY;
         c.saver.minibatch_size = CUSTOM_SAVER_MINIBATCH_SIZE;
         c.saver.env_reward = CUSTOM_SAVER_ENV_REWARD;
+        c.continue_past_success = CUSTOM_SAVER_CONTINUE_PAST_SUCCESS;
         c.head.log_std_bounds = c
             .head
             .log_std_bounds
@@ -221,7 +230,7 @@ mod tests {
         assert_eq!(c.saver.minibatch_size, CUSTOM_SAVER_MINIBATCH_SIZE);
         assert_eq!(c.head.log_std_bounds, Some((CUSTOM_SAVER_LOG_STD_MIN, 0.0)));
         assert_eq!(c.saver.env_reward, CUSTOM_SAVER_ENV_REWARD);
-        assert!(!c.continue_past_success);
+        assert_eq!(c.continue_past_success, CUSTOM_SAVER_CONTINUE_PAST_SUCCESS);
         assert_eq!(
             RunConfig::paper(&custom, Algo::Saver, 1).saver.env_reward,
             0.0
