@@ -290,9 +290,14 @@ def test_token_and_tls_as_for_the_rust_actor():
             raise AssertionError("a wrong token was accepted")
         except Refused as e:
             assert "UNAUTHENTICATED" in str(e), e
+        before = set(threading.enumerate())
         s = Actor(make_env, decl, Connection(url, token="s3cret-token-for-the-test", ca=ca), n_envs=2,
                   give_up=30).run()
         assert s.steps >= 3200 and s.rollouts >= 3200 // 16, s
+        # The stream readers have ended with the run: no daemon thread is left for
+        # interpreter exit to freeze inside a call's lock.
+        left = [t.name for t in set(threading.enumerate()) - before if t.is_alive()]
+        assert not left, left
         print(f"  TLS with a token: {s.rollouts} rollouts, {s.steps} steps; a wrong token refused")
     finally:
         srv.stop()
