@@ -15,6 +15,7 @@ each run's learner folder (metrics.csv, per_dim.csv) stays under --out.
 SAVER variants of one invocation share one PCPN).
 """
 import argparse
+import hashlib
 import json
 import os
 import shutil
@@ -56,6 +57,8 @@ for variant in opts.algos.split(","):
         algo, *flags = variant.split()
         flags += opts.extra.split()
         name = f"{decl.name}-{algo}-seed{seed}" + "".join(flags).replace("-", "_")
+        if len(name) > 120:  # a file name's limit is 255 bytes: a long flag list by its hash
+            name = f"{decl.name}-{algo}-seed{seed}-" + hashlib.sha1(" ".join(flags).encode()).hexdigest()[:12]
         shutil.rmtree(os.path.join(out, name), ignore_errors=True)  # a fresh run, not a resumed one
         before, after, _, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
                                               store if saver else None, name, opts.max_steps, out, 100 * seed,
