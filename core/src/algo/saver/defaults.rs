@@ -111,7 +111,7 @@ pub const CUSTOM_SAVER_MINIBATCH_SIZE: usize = 128;
 /// what else the env's reward counts (Reacher-v5's control cost). On Reacher-v5 (1 M
 /// steps, episodes going on past success, [`CUSTOM_SAVER_CONTINUE_PAST_SUCCESS`]) the
 /// whole episode's return was −5.4 … −6.2 at w = 1 (3 seeds), −4.6 … −5.1 at w = 2 and
-/// −4.3 … −4.5 at w = 3, success 0.94-0.98; the control cost of the approach falls
+/// −4.3 … −4.8 at w = 3, success 0.94-0.98; the control cost of the approach falls
 /// as w grows (seed 1: Σa² 4.05 at w = 1, 2.05 at w = 2) while the approach takes a
 /// few steps longer (results/env-return/). Ending episodes at success instead left what
 /// the policy does at the goal untrained: −11.0 … −12.2 at w = 1 over 5 seeds. A fixed
@@ -120,7 +120,7 @@ pub const CUSTOM_SAVER_MINIBATCH_SIZE: usize = 128;
 pub const CUSTOM_SAVER_ENV_REWARD: f64 = 3.0;
 /// Whether a custom env's episodes go on past success by default for SAVER
 /// ([`RunConfig::continue_past_success`]): what the policy does at the goal then costs
-/// what the env charges for it (Reacher-v5: −4.3 … −4.5 over the whole episode against
+/// what the env charges for it (Reacher-v5: −4.3 … −4.8 over the whole episode against
 /// −11.0 … −12.2 when episodes ended at success), and a step that starts inside the box
 /// learns only from the env's reward. An env without a success radius has no success
 /// to go past; one whose reward is the progress keeps its progress at the goal.
