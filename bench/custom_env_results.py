@@ -49,24 +49,27 @@ def rounded(r):
 
 
 store = None
-for variant in opts.algos.split(","):
-    saver = variant.split()[0] == "saver"
-    for seed in opts.seeds:
-        if saver and store is None:
-            store = t.Server("pcpn-trainer", ["pcpn-trainer", "--store", os.path.join(out, "store")]).wait_ready()
-        algo, *flags = variant.split()
-        flags += opts.extra.split()
-        name = f"{decl.name}-{algo}-seed{seed}" + "".join(flags).replace("-", "_")
-        if len(name) > 120:  # a file name's limit is 255 bytes: a long flag list by its hash
-            name = f"{decl.name}-{algo}-seed{seed}-" + hashlib.sha1(" ".join(flags).encode()).hexdigest()[:12]
-        shutil.rmtree(os.path.join(out, name), ignore_errors=True)  # a fresh run, not a resumed one
-        before, after, _, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
-                                              store if saver else None, name, opts.max_steps, out, 100 * seed,
-                                              opts.curve_every)
-        print(json.dumps({"env": decl.name, "algo": variant, "extra": opts.extra, "seed": seed, "steps": opts.steps,
-                          "wall_s": round(wall, 1), "pcpn_wait_s": round(t.LAST_RUN["pcpn_wait_s"], 1),
-                          "untrained": rounded(before), "trained": rounded(after),
-                          **({"curve": [{"steps": c["steps"], **rounded(c)} for c in t.LAST_RUN["curve"]]}
-                             if opts.curve_every else {})}), flush=True)
-if store is not None:
-    store.stop()
+try:  # the store goes with the script, whatever ends it
+    for variant in opts.algos.split(","):
+        saver = variant.split()[0] == "saver"
+        for seed in opts.seeds:
+            if saver and store is None:
+                store = t.Server("pcpn-trainer", ["pcpn-trainer", "--store", os.path.join(out, "store")]).wait_ready()
+            algo, *flags = variant.split()
+            flags += opts.extra.split()
+            name = f"{decl.name}-{algo}-seed{seed}" + "".join(flags).replace("-", "_")
+            if len(name) > 120:  # a file name's limit is 255 bytes: a long flag list by its hash
+                name = f"{decl.name}-{algo}-seed{seed}-" + hashlib.sha1(" ".join(flags).encode()).hexdigest()[:12]
+            shutil.rmtree(os.path.join(out, name), ignore_errors=True)  # a fresh run, not a resumed one
+            before, after, _, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
+                                                  store if saver else None, name, opts.max_steps, out, 100 * seed,
+                                                  opts.curve_every)
+            print(json.dumps({"env": decl.name, "algo": variant, "extra": opts.extra, "seed": seed, "steps": opts.steps,
+                              "wall_s": round(wall, 1), "pcpn_wait_s": round(t.LAST_RUN["pcpn_wait_s"], 1),
+                              "untrained": rounded(before), "trained": rounded(after),
+                              **({"curve": [{"steps": c["steps"], **rounded(c)} for c in t.LAST_RUN["curve"]]}
+                                 if opts.curve_every else {})}), flush=True)
+finally:
+    if store is not None:
+        store.stop()
+
