@@ -28,6 +28,7 @@ from collections import defaultdict
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CRATES = [".", "core", "learner", "actor", "pcpn-trainer", "proto", "run"]
 IDENT = r"[A-Za-z_][A-Za-z0-9_]*"
+PUB_USE = r"\bpub(?:\([^)]*\))?\s+use\s+([^;]+);"  # a re-export, with its use tree
 
 
 def module_files(src: str):
@@ -98,14 +99,14 @@ class Crate:
         # Re-exports: module -> item name -> flat path as written.
         self.reexports = defaultdict(dict)
         for m, text in self.code.items():
-            for tree in re.findall(r"\bpub(?:\([^)]*\))?\s+use\s+([^;]+);", text):
+            for tree in re.findall(PUB_USE, text):
                 for path in expand(tree):
                     if path:
                         self.reexports[m][path[-1]] = path
 
     def use_paths(self, m):
         # Private `use`s only: a `pub use` is a re-export (no arrow).
-        text = re.sub(r"\bpub(?:\([^)]*\))?\s+use\s+[^;]+;", "", self.code[m])
+        text = re.sub(PUB_USE, "", self.code[m])
         return [p for tree in re.findall(r"\buse\s+([^;]+);", text) for p in expand(tree)]
 
     def is_module(self, m):
@@ -165,10 +166,8 @@ class Crate:
                     paths.append((head,) + tuple(tail))
             for path in paths:
                 target = self.resolve(m, path)
-                if target is not None and target != m and target != ():
+                if target is not None and target != m:
                     found[(m, target)].add(os.path.relpath(self.files[m], ROOT))
-                elif target == () and m != ():
-                    found[(m, ())].add(os.path.relpath(self.files[m], ROOT))
         return found
 
 

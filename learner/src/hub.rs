@@ -342,11 +342,15 @@ impl Hub {
         Self::count_pending(&s)
     }
 
-    /// The counts the Prometheus gauges show at an update.
+    /// The counts the Prometheus gauges show at an update (one look at the state: the
+    /// actors attached and those still waiting for their stream).
     pub fn counts(&self) -> crate::metrics::HubCounts {
+        let mut s = self.lock();
+        Self::expire(&mut s);
+        let pending = Self::count_pending(&s);
         crate::metrics::HubCounts {
-            streaming: self.actors().len(),
-            pending: self.pending(),
+            streaming: s.actors.len() - pending,
+            pending,
             accepted: self.stats.accepted.load(Ordering::Relaxed),
             rejected: self.stats.rejected.load(Ordering::Relaxed),
         }

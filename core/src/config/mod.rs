@@ -265,25 +265,23 @@ impl RunConfig {
         if self.max_episode_steps == 0 {
             return bad("max_episode_steps", "must be >= 1".into());
         }
-        if self.complete_at_success && self.env.kind().is_some() {
-            return bad(
+        // What only a custom env's actors do; a preset has its own reward and episodes.
+        for (asked, field, why) in [
+            (
+                self.complete_at_success,
                 "complete_at_success",
-                format!(
-                    "the preset env {} has its own reward; only a custom env's actors \
-                     complete the progress reward at success",
-                    self.env.name()
-                ),
-            );
-        }
-        if self.continue_past_success && self.env.kind().is_some() {
-            return bad(
+                "has its own reward; only a custom env's actors complete the progress \
+                 reward at success",
+            ),
+            (
+                self.continue_past_success,
                 "continue_past_success",
-                format!(
-                    "the preset env {} ends its episodes at success; only a custom env's \
-                     actors go on past it",
-                    self.env.name()
-                ),
-            );
+                "ends its episodes at success; only a custom env's actors go on past it",
+            ),
+        ] {
+            if asked && self.env.kind().is_some() {
+                return bad(field, format!("the preset env {} {why}", self.env.name()));
+            }
         }
         if !(self.value_coef.is_finite() && self.value_coef >= 0.0) {
             return bad(

@@ -17,6 +17,7 @@
 //! env reward is the sum of its progress reward (it would count that signal twice) or
 //! that carries none (the presets).
 
+use super::grad::OutputLeaves;
 use crate::algo::{gather_rows, lambda_targets, matrix};
 use crate::config::RunConfig;
 use crate::env::EnvLayout;
@@ -25,16 +26,8 @@ use crate::returns::normalize_advantages;
 use crate::rng::SaverRng;
 use crate::rollout::Batch;
 use crate::Result;
-use candle_core::{Device, Tensor, Var};
+use candle_core::{Device, Tensor};
 use std::cell::Cell;
-
-/// The gradient `grads` holds for the leaf `v` (zeros where nothing reached it).
-pub(super) fn leaf_grad(grads: &candle_core::backprop::GradStore, v: &Var) -> Result<Tensor> {
-    Ok(match grads.get(v.as_tensor()) {
-        Some(g) => g.clone(),
-        None => v.as_tensor().zeros_like()?,
-    })
-}
 
 /// The name of the running mean square of the env reward in a checkpoint.
 const MEAN_SQUARE: &str = "env_critic.reward_mean_square";
@@ -175,14 +168,15 @@ impl EnvReturn {
         log_std: &Tensor,
         rows: &EnvRows,
     ) -> Result<(f32, Tensor, Tensor)> {
-        let (mu, log_std) = (
-            Var::from_tensor(&mu.detach())?,
-            Var::from_tensor(&log_std.detach())?,
-        );
-        let log_pi = gaussian_log_prob(layout, mu.as_tensor(), log_std.as_tensor(), &rows.actions)?;
+        let at = OutputLeaves::of(mu, log_std)?;
+        let log_pi = gaussian_log_prob(
+            layout,
+            at.mu.as_tensor(),
+            at.log_std.as_tensor(),
+            &rows.actions,
+        )?;
         let loss = ((&rows.adv * log_pi)?.mean_all()? * -1.0)?;
-        let grads = loss.backward()?;
-        let (g_mu, g_ls) = (leaf_grad(&grads, &mu)?, leaf_grad(&grads, &log_std)?);
+        let (g_mu, g_ls) = at.grads(&loss)?;
         Ok((loss.to_scalar::<f32>()?, g_mu, g_ls))
     }
 

@@ -17,7 +17,50 @@ use crate::config::SaverConfig;
 use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::Pcpn;
 use crate::Result;
-use candle_core::{Tensor, D};
+use candle_core::{Tensor, Var, D};
+
+/// Σ μ·g_μ + Σ log σ·g_log σ over the policy's outputs `mu` and `log_std` (in the
+/// agent's graph): its gradient with respect to the agent's weights is that of any loss
+/// whose gradient at the outputs is (`g_mu`, `g_ls`). Both gradient paths and the
+/// env-return term reach the agent through it.
+pub(super) fn surrogate(
+    mu: &Tensor,
+    log_std: &Tensor,
+    g_mu: &Tensor,
+    g_ls: &Tensor,
+) -> Result<Tensor> {
+    Ok(((mu * g_mu)?.sum_all()? + (log_std * g_ls)?.sum_all()?)?)
+}
+
+/// Detached copies of the policy's outputs μ and log σ as leaves: a loss computed on them
+/// has its gradient there ([`OutputLeaves::grads`]), which [`surrogate`] carries into
+/// the agent.
+pub(super) struct OutputLeaves {
+    pub(super) mu: Var,
+    pub(super) log_std: Var,
+}
+
+impl OutputLeaves {
+    /// Leaves holding the values of `mu` and `log_std`.
+    pub(super) fn of(mu: &Tensor, log_std: &Tensor) -> Result<Self> {
+        Ok(Self {
+            mu: Var::from_tensor(&mu.detach())?,
+            log_std: Var::from_tensor(&log_std.detach())?,
+        })
+    }
+
+    /// The gradient of `loss` at the leaves, (dμ, d log σ); zeros where it does not reach.
+    pub(super) fn grads(&self, loss: &Tensor) -> Result<(Tensor, Tensor)> {
+        let g = loss.backward()?;
+        let at = |v: &Var| -> Result<Tensor> {
+            Ok(match g.get(v.as_tensor()) {
+                Some(t) => t.clone(),
+                None => v.as_tensor().zeros_like()?,
+            })
+        };
+        Ok((at(&self.mu)?, at(&self.log_std)?))
+    }
+}
 
 /// The frozen PCPN with what the hand-written pass needs: W0ᵀ, W1ᵀ and the heads as
 /// plain arrays.

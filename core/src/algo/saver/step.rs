@@ -1,15 +1,15 @@
 //! One optimiser step of SAVER's update: the critic's loss, the actor loss and monotonic
 //! penalty through the frozen PCPN (fast path or autograd reference), and the saturation wall.
 
-use super::env_return::{leaf_grad, EnvReturn, EnvRows};
-use super::grad::{policy_grads, saver_actor_losses};
+use super::env_return::{EnvReturn, EnvRows};
+use super::grad::{policy_grads, saver_actor_losses, surrogate, OutputLeaves};
 use super::{Forward, Saver};
 use crate::algo::{check_finite, matrix};
 use crate::algo::{tau_tensors, GradPath};
 use crate::config::MU_RAW_LIMIT;
 use crate::rng::uniform01;
 use crate::Result;
-use candle_core::{Tensor, Var};
+use candle_core::Tensor;
 
 /// `w · Σ_j mean_b relu(|raw_bj| − MU_RAW_LIMIT)²` over raw means [B, mu_dim], the sum
 /// over `entries` only unless empty: a wall that keeps a tanh-bounded mean where tanh
@@ -103,8 +103,7 @@ impl Saver {
                 let (pg, e_mu, e_ls) =
                     EnvReturn::policy_grads(&self.layout, &f.mu, &f.log_std, env_rows)?;
                 let c = term.scale([g_mu, g_ls], [&e_mu, &e_ls])?;
-                let push = ((&f.mu * (e_mu * c as f64)?)?.sum_all()?
-                    + (&f.log_std * (e_ls * c as f64)?)?.sum_all()?)?;
+                let push = surrogate(&f.mu, &f.log_std, &(e_mu * c as f64)?, &(e_ls * c as f64)?)?;
                 let v_r = term.critic_loss(&f.x, env_rows, self.cfg.lambda_critic)?;
                 env_pg = check_finite("env_pg_loss", pg)?;
                 env_scale = check_finite("env_pg_scale", c)?;
@@ -159,7 +158,7 @@ impl Saver {
                     .input_grad(&f.x, rows.target, rows.adv, taus, &self.cfg)?;
                 let (dmu, dls) = policy_grads(&g.dx, self.layout.obs_dim, self.layout.mu_dim())?;
                 let dmu_host = dmu.flatten_all()?.to_vec1::<f32>()?;
-                let loss = ((&f.mu * &dmu)?.sum_all()? + (&f.log_std * &dls)?.sum_all()?)?;
+                let loss = surrogate(&f.mu, &f.log_std, &dmu, &dls)?;
                 Ok(AgentLoss {
                     actor: g.actor_loss,
                     mon: g.mon_loss,
@@ -172,16 +171,11 @@ impl Saver {
                 let (tau, cos) = tau_tensors(taus, d, b, k, &self.dev)?;
                 // With `want_grads` the losses run on detached copies of μ and log σ,
                 // and their gradient there carries them into the agent.
-                let leaves = if want_grads {
-                    Some((
-                        Var::from_tensor(&f.mu.detach())?,
-                        Var::from_tensor(&f.log_std.detach())?,
-                    ))
-                } else {
-                    None
-                };
+                let leaves = want_grads
+                    .then(|| OutputLeaves::of(&f.mu, &f.log_std))
+                    .transpose()?;
                 let (mu, log_std) = match &leaves {
-                    Some((m, s)) => (m.as_tensor(), s.as_tensor()),
+                    Some(at) => (at.mu.as_tensor(), at.log_std.as_tensor()),
                     None => (&f.mu, &f.log_std),
                 };
                 let l = saver_actor_losses(
@@ -197,7 +191,7 @@ impl Saver {
                 )?;
                 let (actor, mon) = (l.actor.to_scalar::<f32>()?, l.mon.to_scalar::<f32>()?);
                 let total = (l.actor + l.mon)?;
-                let Some((m, s)) = leaves else {
+                let Some(at) = leaves else {
                     return Ok(AgentLoss {
                         actor,
                         mon,
@@ -206,9 +200,8 @@ impl Saver {
                         grads: None,
                     });
                 };
-                let g = total.backward()?;
-                let (g_mu, g_ls) = (leaf_grad(&g, &m)?, leaf_grad(&g, &s)?);
-                let loss = ((&f.mu * &g_mu)?.sum_all()? + (&f.log_std * &g_ls)?.sum_all()?)?;
+                let (g_mu, g_ls) = at.grads(&total)?;
+                let loss = surrogate(&f.mu, &f.log_std, &g_mu, &g_ls)?;
                 Ok(AgentLoss {
                     actor,
                     mon,
