@@ -1,11 +1,16 @@
 #!/usr/bin/env python3
-"""Tuned peers on Reacher-v5 in its own reward (issue 55): Stable-Baselines3 PPO with
+"""Tuned peers on a custom env in its own reward (issue 55), Reacher-v5 by default:
+Stable-Baselines3 PPO with
 RL Zoo's Optuna-tuned Reacher hyperparameters (rl_zoo3/hyperparams/ppo.yml, key
 Reacher-v2: VecNormalize on observations and rewards, 1 env, n_steps 512, batch 32,
 5 epochs, gamma 0.9, GAE lambda 1.0, lr 1.04e-4, clip 0.3, ent 7.5e-8, vf 0.95,
 max_grad_norm 0.9) and SB3 SAC at its defaults. The env is gym.make("Reacher-v5")
 with saver_actor.examples:reacher's observation (joint velocities x 0.1, as SAVER's
 runs see it; VecNormalize rescales it anyway), 50 steps, never ended at success.
+`--factory module:function` runs another env of the same kind (saver_actor.examples:
+pointmass: RL Zoo has no entry for it, so it gets the Reacher entry, the zoo's tuned
+settings for the nearest task, a goal reached by continuous force), with episodes of
+`--max-steps` steps, evaluated as SAVER's runs of that env are.
 
 Every --eval-every env steps, 50 deterministic episodes (env seeds 0-49) as
 bench/custom_env_results.py evaluates SAVER: success (fingertip within 0.02 of the
@@ -15,15 +20,16 @@ one with "final": true.
 
     SB3 venv: pip install stable-baselines3==2.9.2 rl_zoo3 "gymnasium[mujoco]" ./python
     python bench/sb3_tuned.py {ppo-zoo|sac} --steps 1000000 --seed 0 [--eval-every 50000]
+        [--factory saver_actor.examples:pointmass --max-steps 200]
 """
 import argparse
+import importlib
 import json
 import time
 
-import numpy as np
 import torch
+from gymnasium.wrappers import TimeLimit
 from saver_actor.evaluate import scored_episodes
-from saver_actor.examples import reacher
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
@@ -36,8 +42,17 @@ ap.add_argument("--steps", type=int, required=True)
 ap.add_argument("--seed", type=int, default=0)
 ap.add_argument("--eval-every", type=int, default=50_000)
 ap.add_argument("--episodes", type=int, default=50)
+ap.add_argument("--factory", default="saver_actor.examples:reacher",
+                help="module:function returning (make_env, EnvDecl), as saver-actor's --factory")
+ap.add_argument("--max-steps", type=int, default=50, help="steps per episode, in training and evaluation")
 opts = ap.parse_args()
-make_env, decl = reacher()
+module, _, function = opts.factory.partition(":")
+make_env, decl = getattr(importlib.import_module(module), function)()
+
+
+def train_env():
+    """The env for training, its episodes cut at --max-steps as the evaluation's are."""
+    return TimeLimit(make_env(), opts.max_steps)
 
 
 def evaluate(model, norm):
@@ -46,7 +61,7 @@ def evaluate(model, norm):
     def act(o):
         x = norm.normalize_obs(o[None]) if norm is not None else o[None]
         return model.predict(x, deterministic=True)[0][0]
-    r = scored_episodes(make_env, decl, act, opts.episodes, 50)
+    r = scored_episodes(make_env, decl, act, opts.episodes, opts.max_steps)
     return {"success": r["success"], "return": r["return"], "env_return": r["env_return"]}
 
 
@@ -60,26 +75,27 @@ class Every(BaseCallback):
     def _on_step(self):
         if self.num_timesteps >= self.next:
             self.next += opts.eval_every
-            line = {"algo": opts.algo, "seed": opts.seed, "steps": self.num_timesteps,
+            line = {"algo": opts.algo, "env": opts.factory, "seed": opts.seed, "steps": self.num_timesteps,
                     "wall_s": round(time.time() - self.t0, 1), **evaluate(self.model, self.norm)}
             print(json.dumps(line), flush=True)
         return True
 
 
 if opts.algo == "ppo-zoo":
-    venv = VecNormalize(make_vec_env(make_env, n_envs=1, seed=opts.seed), norm_obs=True, norm_reward=True,
+    venv = VecNormalize(make_vec_env(train_env, n_envs=1, seed=opts.seed), norm_obs=True, norm_reward=True,
                         gamma=0.9)
     model = PPO("MlpPolicy", venv, n_steps=512, batch_size=32, gamma=0.9, learning_rate=0.000104019,
                 ent_coef=7.52585e-08, clip_range=0.3, n_epochs=5, gae_lambda=1.0, max_grad_norm=0.9,
                 vf_coef=0.950368, seed=opts.seed, device="cpu")
     norm = venv
 else:
-    venv = make_vec_env(make_env, n_envs=1, seed=opts.seed)
+    venv = make_vec_env(train_env, n_envs=1, seed=opts.seed)
     model = SAC("MlpPolicy", venv, seed=opts.seed, device="cpu")
     norm = None
 t0 = time.time()
 model.learn(total_timesteps=opts.steps, callback=Every(norm))
 if isinstance(norm, VecNormalize):
     norm.training = False
-print(json.dumps({"algo": opts.algo, "seed": opts.seed, "steps": opts.steps, "wall_s": round(time.time() - t0, 1),
+print(json.dumps({"algo": opts.algo, "env": opts.factory, "seed": opts.seed, "steps": opts.steps,
+                  "wall_s": round(time.time() - t0, 1),
                   "final": True, **evaluate(model, norm)}), flush=True)
