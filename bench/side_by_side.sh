@@ -1,5 +1,5 @@
 #!/bin/bash
-# The side-by-side of issue 55 on Reacher-v5, one run of each per seed at equal env
+# The side-by-side of issue 55 on Reacher-v5 (or FACTORY's env), one run of each per seed at equal env
 # steps, every one evaluated the same way (50 deterministic episodes, success and the
 # env's own return; saver_actor.evaluate.scored_episodes), with curves:
 #   saver      SAVER at its custom-env default
@@ -15,6 +15,8 @@
 #   bench/side_by_side.sh OUT STEPS SEED...      e.g. bench/side_by_side.sh R 1000000 0 1 2 3 4
 # SAVER_PY: a Python with saver_actor and gymnasium[mujoco] (default python3);
 # SB3_PY: one with stable-baselines3, rl_zoo3 and saver_actor (unset: no SB3 rows);
+# FACTORY, MAX_STEPS: another env of saver_actor's kind and its episode length
+# (default saver_actor.examples:reacher, 50; the point mass: saver_actor.examples:pointmass, 200);
 # ONLY: a space-separated subset of the rows above. Each row's JSON lines go to
 # OUT/<row>.jsonl (appended), its run folders under OUT/<row>/.
 set -euo pipefail
@@ -24,6 +26,8 @@ here=$(cd "$(dirname "$0")" && pwd); root=$(dirname "$here")
 saver=${SAVER_BIN:-$root/target/release/saver}
 py=${SAVER_PY:-python3}
 only=${ONLY:-saver ppo-tuned a2c sb3-ppo sb3-sac}
+factory=${FACTORY:-saver_actor.examples:reacher}
+max_steps=${MAX_STEPS:-50}
 curve=$(( steps / 10 ))
 mkdir -p "$out"
 export MUJOCO_GL=${MUJOCO_GL:-egl}
@@ -34,7 +38,7 @@ ppo_tuned="ppo --rollout 512 --ppo-minibatch-size 32 --ppo-epochs 5 --gamma 0.9 
 ours() { # row, algo and flags
   local row=$1 algo=$2
   echo "== $row: $steps steps, seeds ${seeds[*]} -> $out/$row.jsonl"
-  "$py" "$here/custom_env_results.py" "$saver" --factory saver_actor.examples:reacher --max-steps 50 \
+  "$py" "$here/custom_env_results.py" "$saver" --factory "$factory" --max-steps "$max_steps" \
     --steps "$steps" --seeds "${seeds[@]}" --algos "$algo" --curve-every "$curve" --out "$out/$row" \
     | grep '^{' >> "$out/$row.jsonl"
 }
@@ -43,7 +47,8 @@ peer() { # row, sb3_tuned.py algorithm
   if [ -z "${SB3_PY:-}" ]; then echo "== $row: skipped (set SB3_PY to a Python with stable-baselines3)"; return; fi
   for seed in "${seeds[@]}"; do
     echo "== $row seed $seed: $steps steps -> $out/$row.jsonl"
-    "$SB3_PY" "$here/sb3_tuned.py" "$algo" --steps "$steps" --seed "$seed" --eval-every "$curve" >> "$out/$row.jsonl"
+    "$SB3_PY" "$here/sb3_tuned.py" "$algo" --steps "$steps" --seed "$seed" --eval-every "$curve" \
+      --factory "$factory" --max-steps "$max_steps" >> "$out/$row.jsonl"
   done
 }
 for row in $only; do
