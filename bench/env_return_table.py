@@ -3,7 +3,9 @@
 bench/custom_env_results.py (with --curve-every) and bench/sb3_tuned.py: per variant,
 success and env return (the env's own return over the whole episode) per seed at the
 end, and the steps at which each seed's deterministic evaluation first reached 0.9
-success and an env return of -6 (">N": never within the run; "-": no curve). With --png, the mean and
+success and an env return of -6 (">N": never within the run; "-": no curve), and the step
+from which every later evaluation, the final one included, stayed at 0.9 success or
+more ("held"; a first crossing can be a lucky evaluation). With --png, the mean and
 standard deviation over seeds of success and env return against steps (matplotlib).
 
     python3 bench/env_return_table.py results/env-return/*.jsonl [--png results/env-return/curves.png]
@@ -19,7 +21,13 @@ ap.add_argument("files", nargs="+")
 ap.add_argument("--png")
 opts = ap.parse_args()
 
-runs = collections.defaultdict(list)  # variant -> [(seed, final, curve)]
+def env_of(r):
+    """The env's short name: custom_env_results.py writes it, sb3_tuned.py its factory
+    (module:function; lines written before it did are Reacher-v5's)."""
+    return r.get("env", "reacher").split(":")[-1]
+
+
+runs = collections.defaultdict(list)  # "env: variant" -> [(seed, final, curve, steps)]
 for path in opts.files:
     sb3 = collections.defaultdict(list)
     with open(path) as f:
@@ -28,11 +36,12 @@ for path in opts.files:
                 continue
             r = json.loads(line)
             if "trained" in r:  # custom_env_results.py: one line per run, its curve inside
-                runs[r["algo"]].append((r["seed"], r["trained"], r.get("curve", []), r["steps"]))
+                runs[f"{env_of(r)}: {r['algo']}"].append((r["seed"], r["trained"], r.get("curve", []), r["steps"]))
             elif r.get("final"):
-                runs["sb3 " + r["algo"]].append((r["seed"], r, sb3[(r["algo"], r["seed"])], r["steps"]))
+                key = (env_of(r), r["algo"], r["seed"])
+                runs[f"{env_of(r)}: sb3 {r['algo']}"].append((r["seed"], r, sb3[key], r["steps"]))
             else:
-                sb3[(r["algo"], r["seed"])].append(r)
+                sb3[(env_of(r), r["algo"], r["seed"])].append(r)
 
 
 def first(curve, ok, steps):
@@ -42,16 +51,31 @@ def first(curve, ok, steps):
     return f"{hit[0] // 1000} k" if hit else f">{steps // 1000} k"
 
 
-print("| variant | seeds | success per seed | env return per seed | mean | steps to 0.9 success | steps to env return -6 |")
-print("|---|---|---|---|---|---|---|")
+def held(curve, final, steps):
+    """The step of the first evaluation from which every later one, and the final one, has
+    success >= 0.9."""
+    if not curve:
+        return "-"
+    if final["success"] < 0.9:
+        return f">{steps // 1000} k"
+    i = len(curve)
+    while i > 0 and curve[i - 1]["success"] >= 0.9:
+        i -= 1
+    return f"{curve[i]['steps'] // 1000} k" if i < len(curve) else f"{steps // 1000} k"
+
+
+print("| variant | seeds | success per seed | env return per seed | mean | steps to 0.9 success | 0.9 success held from"
+      " | steps to env return -6 |")
+print("|---|---|---|---|---|---|---|---|")
 for variant, rs in runs.items():
     rs.sort(key=lambda r: r[0])
     succ = " / ".join(f"{r[1]['success']:.2f}" for r in rs)
     ret = " / ".join(f"{r[1]['env_return']:.1f}" for r in rs)
     mean = np.mean([r[1]["env_return"] for r in rs])
     to_s = " / ".join(first(r[2], lambda c: c["success"] >= 0.9, r[3]) for r in rs)
+    kept = " / ".join(held(r[2], r[1], r[3]) for r in rs)
     to_r = " / ".join(first(r[2], lambda c: c["env_return"] >= -6.0, r[3]) for r in rs)
-    print(f"| {variant} | {len(rs)} | {succ} | {ret} | {mean:.2f} | {to_s} | {to_r} |")
+    print(f"| {variant} | {len(rs)} | {succ} | {ret} | {mean:.2f} | {to_s} | {kept} | {to_r} |")
 
 if opts.png:
     import matplotlib
