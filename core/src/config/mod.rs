@@ -12,7 +12,7 @@ mod saver;
 pub(crate) mod unbounded;
 pub mod upgrade;
 
-pub use head::HeadConfig;
+pub use head::{HeadConfig, LOG_STD_INIT};
 pub use kinds::{Algo, DeltaTarget, Mode, OptimizerKind, SampleDistribution};
 pub use ppo::PpoConfig;
 pub use pretrain::{

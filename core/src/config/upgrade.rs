@@ -78,9 +78,12 @@ mod tests {
     use crate::env::{EnvKind, EnvSpec};
 
     /// A QRRL run's settings as a version before `[qrrl]` wrote them: spread and vector
-    /// under `[saver]` as qrrl_spread and qrrl_vector.
+    /// under `[saver]` as qrrl_spread and qrrl_vector, and no `head.log_std_init` (the
+    /// default −1 it reads as was every earlier run's).
     fn old_form(c: &RunConfig) -> toml::Table {
         let mut top = toml::Table::try_from(c).unwrap();
+        let head = top.get_mut("head").unwrap().as_table_mut().unwrap();
+        assert!(head.remove("log_std_init").is_some());
         let qrrl = top.remove("qrrl").unwrap();
         let saver = top.get_mut("saver").unwrap().as_table_mut().unwrap();
         saver.insert("qrrl_spread".into(), qrrl["spread"].clone());

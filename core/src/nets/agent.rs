@@ -1,5 +1,5 @@
 //! The agent: obs → hidden layers (256 → 128 → 64 by default) → linear μ, a
-//! state-independent trainable log σ (initialised to −1), and for A2C a value head
+//! state-independent trainable log σ (initialised to `head.log_std_init`, −1), and for A2C a value head
 //! → 1 on the shared trunk.
 
 use super::{mlp_forward, Linear, ParamSet};
@@ -8,9 +8,6 @@ use crate::env::EnvLayout;
 use crate::rng::SaverRng;
 use crate::Result;
 use candle_core::{Device, Tensor};
-
-/// Initial log-std of every continuous action dim.
-pub const LOG_STD_INIT: f32 = -1.0;
 
 /// The agent network (and, for A2C, its value head).
 pub struct Agent {
@@ -60,7 +57,12 @@ impl Agent {
         }
         let mu = params.linear("agent.mu", fan_in, layout.mu_dim(), rng, dev)?;
         let n = layout.log_std_dim();
-        let log_std = params.var("agent.log_std", vec![LOG_STD_INIT; n], &[n], dev)?;
+        let log_std = params.var(
+            "agent.log_std",
+            vec![head.log_std_init as f32; n],
+            &[n],
+            dev,
+        )?;
         let value = if with_value {
             Some(params.linear("agent.value", fan_in, 1, rng, dev)?)
         } else {

@@ -65,6 +65,8 @@ impl Gaussian {
             head: HeadConfig {
                 mu_bound,
                 log_std_bounds,
+                // The weights carry log σ itself; where it started is the learner's.
+                log_std_init: crate::config::LOG_STD_INIT,
             },
         })
     }

@@ -117,6 +117,8 @@ pub struct HeadSettings {
     pub log_std_min: Option<f64>,
     #[arg(long, allow_hyphen_values = true, help = help("Upper clamp of log σ (inf: none)", "head.log_std_max"))]
     pub log_std_max: Option<f64>,
+    #[arg(long, allow_hyphen_values = true, help = help("log σ before the first update", "head.log_std_init"))]
+    pub log_std_init: Option<f64>,
 }
 
 /// SAVER's loss: `[saver]` in a file.
