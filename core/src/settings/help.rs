@@ -156,7 +156,7 @@ mod tests {
         assert_eq!(
             help("Floor", "head.log_std_min"),
             "Floor [default: a2c -inf, saver -4.6, --faithful saver -inf] \
-             (saver on angle d >= 8: -1.6) (saver on a custom env: -0.8) (ppo: -4.6)"
+             (saver on angle d >= 8: -1.6) (saver on a custom env: -1.6) (ppo: -4.6)"
         );
         assert_eq!(
             help("Wall", "saver.mu_raw_penalty"),
