@@ -21,6 +21,7 @@ ap.add_argument("files", nargs="+")
 ap.add_argument("--png")
 opts = ap.parse_args()
 
+
 def env_of(r):
     """The env's short name: custom_env_results.py writes it, sb3_tuned.py its factory
     (module:function; lines written before it did are Reacher-v5's)."""
