@@ -15,9 +15,9 @@ distance, and its gain near the goal.
         RUN/policy.safetensors sb3-ppo-seed0.zip [...] [--max-steps 200] [--rest-curve]
 """
 import argparse
-import importlib
 
 import numpy as np
+from saver_actor import factory_function
 
 ap = argparse.ArgumentParser()
 ap.add_argument("policies", nargs="+")
@@ -26,8 +26,7 @@ ap.add_argument("--max-steps", type=int, default=200)
 ap.add_argument("--episodes", type=int, default=50)
 ap.add_argument("--rest-curve", action="store_true")
 opts = ap.parse_args()
-mod, _, fn = opts.factory.partition(":")
-make_env, decl = getattr(importlib.import_module(mod), fn)()
+make_env, decl = factory_function(opts.factory)()
 OFFSETS = np.array([-0.6, -0.4, -0.2, -0.1, -0.05, -0.02, 0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.6])
 WINDOWS = [(0, 5), (5, 10), (10, 20), (20, 40), (40, opts.max_steps)]
 

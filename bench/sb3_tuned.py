@@ -23,12 +23,12 @@ one with "final": true.
         [--factory saver_actor.examples:pointmass --max-steps 200]
 """
 import argparse
-import importlib
 import json
 import time
 
 import torch
 from gymnasium.wrappers import TimeLimit
+from saver_actor import factory_function
 from saver_actor.evaluate import scored_episodes
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
@@ -46,8 +46,7 @@ ap.add_argument("--factory", default="saver_actor.examples:reacher",
                 help="module:function returning (make_env, EnvDecl), as saver-actor's --factory")
 ap.add_argument("--max-steps", type=int, default=50, help="steps per episode, in training and evaluation")
 opts = ap.parse_args()
-module, _, function = opts.factory.partition(":")
-make_env, decl = getattr(importlib.import_module(module), function)()
+make_env, decl = factory_function(opts.factory)()
 
 
 def train_env():

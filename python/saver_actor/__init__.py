@@ -9,9 +9,10 @@ PCPN is pretrained on; load a trained policy and predict with it (Policy).
 """
 from .actor import Actor, Connection, LinkLost, Refused, RunFinished, Summary
 from .check import CheckReport, check_env
-from .env import EnvDecl, EnvError
+from .env import EnvDecl, EnvError, factory_function
 from .policy import Gaussian, Policy, Quantile, policy_for
 from .samples import provide_samples
 
 __all__ = ["Actor", "CheckReport", "Connection", "EnvDecl", "EnvError", "Gaussian", "LinkLost", "Policy",
-           "Quantile", "Refused", "RunFinished", "Summary", "check_env", "policy_for", "provide_samples"]
+           "Quantile", "Refused", "RunFinished", "Summary", "check_env", "factory_function", "policy_for",
+           "provide_samples"]

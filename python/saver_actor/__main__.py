@@ -12,7 +12,6 @@ print the learner's [env] section, or time the actor against the bare env.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import signal
@@ -20,7 +19,7 @@ import sys
 import threading
 
 from .actor import Actor, Connection, LinkLost, Refused
-from .env import EnvDecl, EnvError
+from .env import EnvDecl, EnvError, factory_function
 from .samples import provide_samples
 
 
@@ -31,20 +30,15 @@ def _floats(s):
 def env_of(args):
     """(make_env, decl) from --factory module:function or from --env-id and the flags."""
     if args.factory:
-        mod, _, fn = args.factory.partition(":")
-        if not fn:
-            sys.exit(f"--factory {args.factory!r}: expected module:function")
         # The user's module sits where they run the command (the console script's
         # sys.path starts at its own bin folder, not there).
         if os.getcwd() not in sys.path:
             sys.path.insert(0, os.getcwd())
         try:
-            module = importlib.import_module(mod)
-        except ModuleNotFoundError as e:
-            sys.exit(f"--factory {args.factory!r}: {e} (run from the folder that holds it, or set PYTHONPATH)")
-        if not hasattr(module, fn):
-            sys.exit(f"--factory {args.factory!r}: {mod} has no {fn}")
-        return getattr(module, fn)()
+            factory = factory_function(args.factory)
+        except ValueError as e:
+            sys.exit(str(e))
+        return factory()
     if not args.env_id or not args.aligned or args.max_change is None:
         sys.exit("give --factory module:function, or --env-id with --aligned and --max-change")
     import gymnasium as gym

@@ -8,6 +8,7 @@ the actor against (saver.proto EnvSpec).
 """
 from __future__ import annotations
 
+import importlib
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence, Union
@@ -24,6 +25,22 @@ def _slack(b: float) -> float:
 
 class EnvError(ValueError):
     """An environment does not do what its declaration says."""
+
+
+def factory_function(spec: str) -> Callable[[], tuple]:
+    """The function named by a factory "module:function" (`--factory`), which returns
+    (make_env, EnvDecl) when called; a ValueError says what is wrong with the name. The
+    module is imported as Python finds it (sys.path)."""
+    mod, _, fn = spec.partition(":")
+    if not mod or not fn:
+        raise ValueError(f"--factory {spec!r}: expected module:function")
+    try:
+        module = importlib.import_module(mod)
+    except ModuleNotFoundError as e:
+        raise ValueError(f"--factory {spec!r}: {e} (run from the folder that holds it, or set PYTHONPATH)") from e
+    if not hasattr(module, fn):
+        raise ValueError(f"--factory {spec!r}: {mod} has no {fn}")
+    return getattr(module, fn)
 
 
 # The largest env reward per step a learner takes (core/src/limits.rs MAX_ENV_REWARD).

@@ -18,7 +18,6 @@ processes:
 """
 import csv
 import dataclasses
-import importlib
 import json
 import os
 import signal
@@ -35,7 +34,7 @@ import gymnasium as gym
 import numpy as np
 from safetensors import safe_open
 from safetensors.numpy import load
-from saver_actor import Actor, Connection, EnvDecl, EnvError, Policy, Refused, policy_for
+from saver_actor import Actor, Connection, EnvDecl, EnvError, Policy, Refused, factory_function, policy_for
 from saver_actor._proto import saver_pb2 as pb
 from saver_actor._proto import saver_pb2_grpc as pb_grpc
 from saver_actor.actor import WAITING_KEY
@@ -711,10 +710,26 @@ def final_distance(tensors, settings):
     return evaluate(tensors, settings, *reacher(), max_steps=50)["distance"]
 
 
+def test_a_factory_name_is_checked():
+    # factory_function (every --factory: the CLI, these tests, the bench scripts) finds
+    # the point mass's function, and each malformed name gets a ValueError that quotes it.
+    make_env, decl = factory_function("saver_actor.examples:pointmass")()
+    assert decl.name == "pointmass" and make_env().observation_space.shape == (6,)
+    for spec, says in [("saver_actor.examples", "expected module:function"),
+                       (":pointmass", "expected module:function"),
+                       ("no_such_module_here:f", "No module named"),
+                       ("saver_actor.examples:nope", "saver_actor.examples has no nope")]:
+        try:
+            factory_function(spec)
+        except ValueError as e:
+            assert says in str(e) and repr(spec) in str(e), e
+        else:
+            raise AssertionError(f"{spec} was taken")
+
+
 def custom_env(factory):
     """(make_env, decl) of a factory "module:function"."""
-    mod, _, fn = factory.partition(":")
-    return getattr(importlib.import_module(mod), fn)()
+    return factory_function(factory)()
 
 
 LAST_RUN: dict = {}  # custom_run's latest timings besides its wall time

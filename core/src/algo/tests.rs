@@ -234,7 +234,7 @@ fn acting_policy_equals_the_training_network() {
     let bounded = crate::nets::HeadConfig {
         mu_bound: Some(1.0),
         log_std_bounds: Some((-3.0, -0.5)),
-        log_std_init: crate::config::LOG_STD_INIT,
+        ..crate::nets::HeadConfig::FAITHFUL
     };
     let paper = &crate::config::PAPER_HIDDEN[..];
     for (spec, head, hidden) in [

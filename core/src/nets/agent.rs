@@ -1,6 +1,6 @@
 //! The agent: obs → hidden layers (256 → 128 → 64 by default) → linear μ, a
-//! state-independent trainable log σ (initialised to `head.log_std_init`, −1), and for A2C a value head
-//! → 1 on the shared trunk.
+//! state-independent trainable log σ (initialised to `head.log_std_init`, −1 unless
+//! set), and for A2C a value head → 1 on the shared trunk.
 
 use super::{mlp_forward, Linear, ParamSet};
 use crate::config::HeadConfig;

@@ -62,11 +62,11 @@ impl Gaussian {
         }
         Ok(Self {
             layout,
+            // The weights carry log σ itself; where it started is the learner's business.
             head: HeadConfig {
                 mu_bound,
                 log_std_bounds,
-                // The weights carry log σ itself; where it started is the learner's.
-                log_std_init: crate::config::LOG_STD_INIT,
+                ..HeadConfig::FAITHFUL
             },
         })
     }
