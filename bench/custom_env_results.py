@@ -9,7 +9,7 @@ each run's learner folder (metrics.csv, per_dim.csv) stays under --out.
 
     python3 bench/custom_env_results.py target/release/saver --factory saver_actor.examples:pointmass \\
         --steps 300000 --seeds 0 1 2 [--algos "a2c,saver,saver --saver-target predicted"] [--extra "FLAGS"]
-        [--max-steps 200] [--out DIR] [--curve-every STEPS]
+        [--max-steps 200] [--out DIR] [--curve-every STEPS] [--tag -30k]
 
 --algos: comma-separated algorithms, each optionally followed by flags of its own (all
 SAVER variants of one invocation share one PCPN).
@@ -31,6 +31,8 @@ ap.add_argument("--algos", default="a2c,saver")
 ap.add_argument("--extra", default="", help="flags for every learner")
 ap.add_argument("--max-steps", type=int, default=200, help="the learner's max_episode_steps")
 ap.add_argument("--out", default=None, help="folder for the learners' run folders (default: a temp folder)")
+ap.add_argument("--tag", default="", help="appended to every run folder's name (e.g. -30k: runs of another "
+                "length beside these in one --out, sharing its PCPN)")
 ap.add_argument("--curve-every", type=int, default=0,
                 help="also evaluate the weights every so many steps while the run trains (\"curve\" in the JSON)")
 opts = ap.parse_args()
@@ -60,6 +62,7 @@ try:  # the store goes with the script, whatever ends it
             name = f"{decl.name}-{algo}-seed{seed}" + "".join(flags).replace("-", "_")
             if len(name) > 120:  # a file name's limit is 255 bytes: a long flag list by its hash
                 name = f"{decl.name}-{algo}-seed{seed}-" + hashlib.sha1(" ".join(flags).encode()).hexdigest()[:12]
+            name += opts.tag
             shutil.rmtree(os.path.join(out, name), ignore_errors=True)  # a fresh run, not a resumed one
             before, after, _, wall = t.custom_run(opts.factory, algo, opts.steps, ["--seed", str(seed), *flags],
                                                   store if saver else None, name, opts.max_steps, out, 100 * seed,

@@ -20,7 +20,7 @@ one with "final": true.
 
     SB3 venv: pip install stable-baselines3==2.9.2 rl_zoo3 "gymnasium[mujoco]" ./python
     python bench/sb3_tuned.py {ppo-zoo|sac} --steps 1000000 --seed 0 [--eval-every 50000]
-        [--factory saver_actor.examples:pointmass --max-steps 200]
+        [--factory saver_actor.examples:pointmass --max-steps 200] [--lr-decay]
 """
 import argparse
 import json
@@ -45,7 +45,12 @@ ap.add_argument("--episodes", type=int, default=50)
 ap.add_argument("--factory", default="saver_actor.examples:reacher",
                 help="module:function returning (make_env, EnvDecl), as saver-actor's --factory")
 ap.add_argument("--max-steps", type=int, default=50, help="steps per episode, in training and evaluation")
+ap.add_argument("--lr-decay", action="store_true",
+                help="PPO's rate falls linearly to 0 over --steps, as SAVER's does on a custom env "
+                "(the zoo's is constant)")
 opts = ap.parse_args()
+if opts.lr_decay and opts.algo != "ppo-zoo":
+    ap.error("--lr-decay is PPO's (SAC keeps SB3's constant rate)")
 make_env, decl = factory_function(opts.factory)()
 
 
@@ -74,7 +79,7 @@ class Every(BaseCallback):
     def _on_step(self):
         if self.num_timesteps >= self.next:
             self.next += opts.eval_every
-            line = {"algo": opts.algo, "env": opts.factory, "seed": opts.seed, "steps": self.num_timesteps,
+            line = {"algo": name, "env": opts.factory, "seed": opts.seed, "steps": self.num_timesteps,
                     "wall_s": round(time.time() - self.t0, 1), **evaluate(self.model, self.norm)}
             print(json.dumps(line), flush=True)
         return True
@@ -83,7 +88,9 @@ class Every(BaseCallback):
 if opts.algo == "ppo-zoo":
     venv = VecNormalize(make_vec_env(train_env, n_envs=1, seed=opts.seed), norm_obs=True, norm_reward=True,
                         gamma=0.9)
-    model = PPO("MlpPolicy", venv, n_steps=512, batch_size=32, gamma=0.9, learning_rate=0.000104019,
+    lr = 0.000104019
+    model = PPO("MlpPolicy", venv, n_steps=512, batch_size=32, gamma=0.9,
+                learning_rate=(lambda left: lr * left) if opts.lr_decay else lr,
                 ent_coef=7.52585e-08, clip_range=0.3, n_epochs=5, gae_lambda=1.0, max_grad_norm=0.9,
                 vf_coef=0.950368, seed=opts.seed, device="cpu")
     norm = venv
@@ -91,10 +98,11 @@ else:
     venv = make_vec_env(train_env, n_envs=1, seed=opts.seed)
     model = SAC("MlpPolicy", venv, seed=opts.seed, device="cpu")
     norm = None
+name = opts.algo + ("-lr-decay" if opts.lr_decay else "")
 t0 = time.time()
 model.learn(total_timesteps=opts.steps, callback=Every(norm))
 if isinstance(norm, VecNormalize):
     norm.training = False
-print(json.dumps({"algo": opts.algo, "env": opts.factory, "seed": opts.seed, "steps": opts.steps,
+print(json.dumps({"algo": name, "env": opts.factory, "seed": opts.seed, "steps": opts.steps,
                   "wall_s": round(time.time() - t0, 1),
                   "final": True, **evaluate(model, norm)}), flush=True)

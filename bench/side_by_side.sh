@@ -19,6 +19,11 @@
 # (default saver_actor.examples:reacher, 50; the point mass: saver_actor.examples:pointmass, 200);
 # ONLY: a space-separated subset of the rows above. Each row's JSON lines go to
 # OUT/<row>.jsonl (appended), its run folders under OUT/<row>/.
+# BUDGETS: env-step budgets (e.g. "20000 30000 50000") at which each of our rows also runs
+# whole runs of its own (SAVER's rate decays over the run, so a run of N steps is not step
+# N of a longer one) into OUT/<row>-budgets.jsonl, and the SB3 PPO rows once more with the
+# rate falling to 0 over each budget (sb3-ppo-lr-decay.jsonl); then bench/budget_table.py
+# over every file (a run's end is its budget; SB3's constant-rate evaluations are budgets too).
 set -euo pipefail
 out=$1; steps=$2; shift 2; seeds=("$@")
 [ ${#seeds[@]} -gt 0 ] || { echo "usage: $0 OUT STEPS SEED..." >&2; exit 2; }
@@ -35,12 +40,19 @@ ppo_tuned="ppo --rollout 512 --ppo-minibatch-size 32 --ppo-epochs 5 --gamma 0.9 
 --entropy-coef 7.5e-8 --ppo-clip 0.3 --gae-lambda 1.0 --grad-clip 0.9 --value-coef 0.95 \
 --ppo-obs-norm true --ppo-reward-norm true --ppo-env-reward true --hidden 64 --hidden 64 \
 --continue-past-success true"
+budgets=${BUDGETS:-}
 ours() { # row, algo and flags
   local row=$1 algo=$2
   echo "== $row: $steps steps, seeds ${seeds[*]} -> $out/$row.jsonl"
   "$py" "$here/custom_env_results.py" "$saver" --factory "$factory" --max-steps "$max_steps" \
     --steps "$steps" --seeds "${seeds[@]}" --algos "$algo" --curve-every "$curve" --out "$out/$row" \
     | grep '^{' >> "$out/$row.jsonl"
+  for n in $budgets; do
+    echo "== $row: a budget of $n steps, seeds ${seeds[*]} -> $out/$row-budgets.jsonl"
+    "$py" "$here/custom_env_results.py" "$saver" --factory "$factory" --max-steps "$max_steps" \
+      --steps "$n" --seeds "${seeds[@]}" --algos "$algo" --out "$out/$row" --tag "-budget$n" \
+      | grep '^{' >> "$out/$row-budgets.jsonl"
+  done
 }
 peer() { # row, sb3_tuned.py algorithm
   local row=$1 algo=$2
@@ -49,6 +61,13 @@ peer() { # row, sb3_tuned.py algorithm
     echo "== $row seed $seed: $steps steps -> $out/$row.jsonl"
     "$SB3_PY" "$here/sb3_tuned.py" "$algo" --steps "$steps" --seed "$seed" --eval-every "$curve" \
       --factory "$factory" --max-steps "$max_steps" >> "$out/$row.jsonl"
+    if [ "$algo" = ppo-zoo ]; then
+      for n in $budgets; do
+        echo "== $row seed $seed: a budget of $n steps, the rate decaying -> $out/$row-lr-decay.jsonl"
+        "$SB3_PY" "$here/sb3_tuned.py" "$algo" --lr-decay --steps "$n" --seed "$seed" --eval-every 1000000000 \
+          --factory "$factory" --max-steps "$max_steps" >> "$out/$row-lr-decay.jsonl"
+      done
+    fi
   done
 }
 for row in $only; do
@@ -61,5 +80,11 @@ for row in $only; do
     *) echo "unknown row $row" >&2; exit 2 ;;
   esac
 done
-"$py" "$here/env_return_table.py" "$out"/*.jsonl --png "$out/curves.png"
-echo "table above; figure: $out/curves.png; runs: $out/"
+shopt -s nullglob
+curves=()
+for f in "$out"/*.jsonl; do
+  case $f in *-budgets.jsonl|*-lr-decay.jsonl) ;; *) curves+=("$f") ;; esac
+done
+"$py" "$here/env_return_table.py" "${curves[@]}" --png "$out/curves.png"
+[ -z "$budgets" ] || "$py" "$here/budget_table.py" "$out"/*.jsonl
+echo "tables above; figure: $out/curves.png; runs: $out/"
