@@ -8,9 +8,10 @@ core/src/algo/saver/signal.rs): per coordinate the rank correlation of the obser
 and the predicted target, the share of the position change the action causes and the
 PCPN's error against the action's effect; per action entry the signal-to-noise ratio
 of SAVER's and of A2C's gradient on the same batches. Next to it, the run's mean
-episode length from metrics.csv.
+episode length from metrics.csv. Several runs (seeds) pool their rows per window: each
+line is then the mean over every run's batches in it.
 
-    bench/per_dim_summary.py RUN_DIR [--every 100000]
+    bench/per_dim_summary.py RUN_DIR... [--every 100000]
 """
 import argparse
 import csv
@@ -24,26 +25,32 @@ def rows(path):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("run")
+    ap.add_argument("runs", nargs="+")
     ap.add_argument("--every", type=int, default=100_000)
     args = ap.parse_args()
-    per_dim = rows(os.path.join(args.run, "per_dim.csv"))
-    metrics = rows(os.path.join(args.run, "metrics.csv"))
+    per_dim = [r for run in args.runs for r in rows(os.path.join(run, "per_dim.csv"))]
     d = sum(1 for k in per_dim[0] if k.startswith("critic_mse_"))
     m = sum(1 for k in per_dim[0] if k.startswith("mu_sat_"))
     windows = {}
     for r in per_dim:
         windows.setdefault((int(r["steps"]) - 1) // args.every, []).append(r)
-    length = {}
-    for r in metrics:
-        if r["mean_ep_len_100"]:
-            length[(int(r["steps"]) - 1) // args.every] = float(r["mean_ep_len_100"])
+    lengths = {}  # the last mean length of each run in each window
+    for run in args.runs:
+        last = {}
+        for r in rows(os.path.join(run, "metrics.csv")):
+            if r["mean_ep_len_100"]:
+                last[(int(r["steps"]) - 1) // args.every] = float(r["mean_ep_len_100"])
+        for w, x in last.items():
+            lengths.setdefault(w, []).append(x)
+    length = {w: sum(xs) / len(xs) for w, xs in lengths.items()}
 
     def mean(rs, key):
         return sum(float(r[key]) for r in rs) / len(rs)
 
-    fmt = lambda xs, f: " ".join(f.format(x) for x in xs)
-    print(f"{args.run}: d = {d}, {m} mean entries; per window of {args.every} steps")
+    def fmt(xs, f):
+        return " ".join(f.format(x) for x in xs)
+
+    print(f"{' '.join(args.runs)}: d = {d}, {m} mean entries; per window of {args.every} steps")
     for w in sorted(windows):
         rs = windows[w]
         ev = [1 - mean(rs, f"critic_mse_{j}") / max(mean(rs, f"return_var_{j}"), 1e-12) for j in range(d)]
