@@ -9,7 +9,7 @@ each run's learner folder (metrics.csv, per_dim.csv) stays under --out.
 
     python3 bench/custom_env_results.py target/release/saver --factory saver_actor.examples:pointmass \\
         --steps 300000 --seeds 0 1 2 [--algos "a2c,saver,saver --saver-target predicted"] [--extra "FLAGS"]
-        [--max-steps 200] [--out DIR] [--curve-every STEPS] [--tag -30k]
+        [--max-steps 200] [--out DIR] [--curve-every STEPS] [--tag=-30k]
 
 --algos: comma-separated algorithms, each optionally followed by flags of its own (all
 SAVER variants of one invocation share one PCPN).
@@ -31,7 +31,7 @@ ap.add_argument("--algos", default="a2c,saver")
 ap.add_argument("--extra", default="", help="flags for every learner")
 ap.add_argument("--max-steps", type=int, default=200, help="the learner's max_episode_steps")
 ap.add_argument("--out", default=None, help="folder for the learners' run folders (default: a temp folder)")
-ap.add_argument("--tag", default="", help="appended to every run folder's name (e.g. -30k: runs of another "
+ap.add_argument("--tag", default="", help="appended to every run folder's name (e.g. --tag=-30k: runs of another "
                 "length beside these in one --out, sharing its PCPN)")
 ap.add_argument("--curve-every", type=int, default=0,
                 help="also evaluate the weights every so many steps while the run trains (\"curve\" in the JSON)")

@@ -50,7 +50,7 @@ ours() { # row, algo and flags
   for n in $budgets; do
     echo "== $row: a budget of $n steps, seeds ${seeds[*]} -> $out/$row-budgets.jsonl"
     "$py" "$here/custom_env_results.py" "$saver" --factory "$factory" --max-steps "$max_steps" \
-      --steps "$n" --seeds "${seeds[@]}" --algos "$algo" --out "$out/$row" --tag "-budget$n" \
+      --steps "$n" --seeds "${seeds[@]}" --algos "$algo" --out "$out/$row" --tag="-budget$n" \
       | grep '^{' >> "$out/$row-budgets.jsonl"
   done
 }
