@@ -16,9 +16,12 @@ line is then the mean over every run's batches in it.
 import argparse
 import csv
 import os
+import sys
 
 
 def rows(path):
+    if not os.path.isfile(path):
+        sys.exit(f"per_dim_summary: {path} not found (each RUN_DIR is a SAVER learner's run folder)")
     with open(path) as f:
         return list(csv.DictReader(f))
 
