@@ -44,8 +44,6 @@ def pretraining_steps(variant):
 
 def budget(n, pre):
     """A budget as the table's summary line writes it, with the pretraining added where any."""
-    if n is None:
-        return "none"
     return f"{n:,}" + (f" ({n + pre:,} with pretraining)" if pre else "")
 
 
@@ -96,5 +94,9 @@ for variant in sorted(table):
         ok_every.append((n, min(succ) >= opts.target))
         ok_mean.append((n, statistics.mean(succ) >= opts.target))
     for what, ok in (("every seed", ok_every), ("the seeds' mean", ok_mean)):
-        print(f"{what} >= {opts.target}: first at {budget(first(ok), pre)}, at every larger budget from"
-              f" {budget(held(ok), pre)}")
+        if first(ok) is None:
+            print(f"{what} >= {opts.target}: at no budget up to {max(budgets):,}")
+        else:
+            kept = held(ok)
+            kept = f"at every larger budget from {budget(kept, pre)}" if kept else "not at the largest budget"
+            print(f"{what} >= {opts.target}: first at {budget(first(ok), pre)}, {kept}")

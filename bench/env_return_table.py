@@ -13,6 +13,7 @@ standard deviation over seeds of success and env return against steps (matplotli
 import argparse
 import collections
 import json
+import sys
 
 import numpy as np
 
@@ -78,9 +79,14 @@ for variant, rs in runs.items():
     to_r = " / ".join(first(r[2], lambda c: c["env_return"] >= -6.0, r[3]) for r in rs)
     print(f"| {variant} | {len(rs)} | {succ} | {ret} | {mean:.2f} | {to_s} | {kept} | {to_r} |")
 
-if opts.png:
+try:
     import matplotlib
-
+except ImportError:
+    matplotlib = None
+    if opts.png:
+        print(f"env_return_table: no figure {opts.png}: this Python has no matplotlib (pip install matplotlib)",
+              file=sys.stderr)
+if opts.png and matplotlib is not None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

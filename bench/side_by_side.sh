@@ -13,7 +13,7 @@
 # then the table and the figure (bench/env_return_table.py).
 #
 #   bench/side_by_side.sh OUT STEPS SEED...      e.g. bench/side_by_side.sh R 1000000 0 1 2 3 4
-# SAVER_PY: a Python with saver_actor and gymnasium[mujoco] (default python3);
+# SAVER_PY: a Python with saver_actor, gymnasium[mujoco] and matplotlib (default python3);
 # SB3_PY: one with stable-baselines3, rl_zoo3 and saver_actor (unset: no SB3 rows);
 # FACTORY, MAX_STEPS: another env of saver_actor's kind and its episode length
 # (default saver_actor.examples:reacher, 50; the point mass: saver_actor.examples:pointmass, 200);
@@ -85,6 +85,8 @@ curves=()
 for f in "$out"/*.jsonl; do
   case $f in *-budgets.jsonl|*-lr-decay.jsonl) ;; *) curves+=("$f") ;; esac
 done
+rm -f "$out/curves.png"
 "$py" "$here/env_return_table.py" "${curves[@]}" --png "$out/curves.png"
 [ -z "$budgets" ] || "$py" "$here/budget_table.py" "$out"/*.jsonl
-echo "tables above; figure: $out/curves.png; runs: $out/"
+figure=" (no figure: $py has no matplotlib)"; [ ! -f "$out/curves.png" ] || figure="; figure: $out/curves.png"
+echo "tables above$figure; runs: $out/"
