@@ -94,9 +94,9 @@ for variant in sorted(table):
         ok_every.append((n, min(succ) >= opts.target))
         ok_mean.append((n, statistics.mean(succ) >= opts.target))
     for what, ok in (("every seed", ok_every), ("the seeds' mean", ok_mean)):
-        if first(ok) is None:
+        at, kept = first(ok), held(ok)
+        if at is None:
             print(f"{what} >= {opts.target}: at no budget up to {max(budgets):,}")
         else:
-            kept = held(ok)
-            kept = f"at every larger budget from {budget(kept, pre)}" if kept else "not at the largest budget"
-            print(f"{what} >= {opts.target}: first at {budget(first(ok), pre)}, {kept}")
+            since = f"at every larger budget from {budget(kept, pre)}" if kept else "not at the largest budget"
+            print(f"{what} >= {opts.target}: first at {budget(at, pre)}, {since}")

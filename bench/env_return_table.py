@@ -79,14 +79,13 @@ for variant, rs in runs.items():
     to_r = " / ".join(first(r[2], lambda c: c["env_return"] >= -6.0, r[3]) for r in rs)
     print(f"| {variant} | {len(rs)} | {succ} | {ret} | {mean:.2f} | {to_s} | {kept} | {to_r} |")
 
-try:
-    import matplotlib
-except ImportError:
-    matplotlib = None
-    if opts.png:
+if opts.png:
+    try:
+        import matplotlib
+    except ImportError:  # the table above is the product and the figure the last step: no failure
         print(f"env_return_table: no figure {opts.png}: this Python has no matplotlib (pip install matplotlib)",
               file=sys.stderr)
-if opts.png and matplotlib is not None:
+        sys.exit(0)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

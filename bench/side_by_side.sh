@@ -86,7 +86,7 @@ for f in "$out"/*.jsonl; do
   case $f in *-budgets.jsonl|*-lr-decay.jsonl) ;; *) curves+=("$f") ;; esac
 done
 rm -f "$out/curves.png"
-"$py" "$here/env_return_table.py" "${curves[@]}" --png "$out/curves.png"
+"$py" "$here/env_return_table.py" "${curves[@]}" --png "$out/curves.png"  # says why where no figure
 [ -z "$budgets" ] || "$py" "$here/budget_table.py" "$out"/*.jsonl
-figure=" (no figure: $py has no matplotlib)"; [ ! -f "$out/curves.png" ] || figure="; figure: $out/curves.png"
+figure=""; [ ! -f "$out/curves.png" ] || figure="; figure: $out/curves.png"
 echo "tables above$figure; runs: $out/"
