@@ -18,6 +18,7 @@ mod targets;
 use crate::algo::{update_rows, Algorithm, GradPath, UpdateStats};
 use crate::config::{DeltaTarget, RunConfig, SaverConfig};
 use crate::env::{EnvLayout, Routing};
+use crate::nets::obs_norm::RunningStats;
 use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
@@ -52,6 +53,8 @@ const STATS_TUNED: &[&str] = &[
 const STATS: &[&str] = STATS_TUNED.split_at(STATS_TUNED.len() - 1).0;
 
 /// The env-return term's statistics, when the run has it (0 on a batch it skips).
+/// The checkpoint prefix of `saver.obs_norm`'s statistics.
+const OBS_NORM_STATE: &str = "saver.obs_norm";
 const ENV_STATS: &[&str] = &["env_pg_loss", "env_pg_scale", "env_critic_loss"];
 
 /// The SAVER learner state.
@@ -94,6 +97,9 @@ pub struct Saver {
     /// In a run that goes on past success, the success box: a step that starts inside
     /// it has no vector advantage (its progress is only noise around the goal).
     at_goal: Option<crate::env::SuccessRule>,
+    /// `saver.obs_norm`: the running statistics the agent's and critics' observations are
+    /// normalised by (the PCPN reads them raw); published with the weights.
+    obs_norm: Option<RunningStats>,
 }
 
 /// SAVER's registration ([`crate::algo::entry`]).
@@ -155,6 +161,10 @@ impl Saver {
                 .continue_past_success
                 .then(|| config.env.success_rule())
                 .flatten(),
+            obs_norm: config
+                .saver
+                .obs_norm
+                .then(|| RunningStats::new(layout.obs_dim)),
         })
     }
 
@@ -184,8 +194,11 @@ struct Forward {
     mu: Tensor,
     raw: Tensor,
     log_std: Tensor,
-    /// [N, o + M + L]: the PCPN's and the critic's inputs [o, μ, log σ] as constants.
+    /// [N, o + M + L]: the PCPN's input [o, μ, log σ] as constants.
     x: Tensor,
+    /// The critics' input: `x` with the observations as the agent reads them
+    /// (normalised with `saver.obs_norm`, else `x` itself).
+    xc: Tensor,
     /// [N, d]: V(x).
     value: Tensor,
 }
@@ -200,6 +213,7 @@ impl Forward {
             raw: first(&self.raw)?,
             log_std: first(&self.log_std)?,
             x: first(&self.x)?,
+            xc: first(&self.xc)?,
             value: first(&self.value)?,
         })
     }
@@ -228,16 +242,28 @@ struct Start<'a> {
 impl Saver {
     /// Agent and critic over the observations `obs`.
     fn forward(&self, obs: Tensor) -> Result<Forward> {
-        let out = self.agent.forward(&obs)?;
+        let seen = match &self.obs_norm {
+            Some(s) => Some(s.normalize_tensor(&obs)?),
+            None => None,
+        };
+        let out = self.agent.forward(seen.as_ref().unwrap_or(&obs))?;
         // The critic sees the policy's outputs as constants: its loss trains it alone.
-        let x = Tensor::cat(&[&obs, &out.mu, &out.log_std], 1)?.detach();
-        let value = self.critic.forward(&x)?;
+        let with_policy = |o: &Tensor| -> Result<Tensor> {
+            Ok(Tensor::cat(&[o, &out.mu, &out.log_std], 1)?.detach())
+        };
+        let x = with_policy(&obs)?;
+        let xc = match &seen {
+            Some(o) => with_policy(o)?,
+            None => x.clone(),
+        };
+        let value = self.critic.forward(&xc)?;
         Ok(Forward {
             obs,
             mu: out.mu,
             raw: out.mu_raw,
             log_std: out.log_std,
             x,
+            xc,
             value,
         })
     }
@@ -252,7 +278,7 @@ impl Saver {
         let env = match &self.env {
             Some(e) if EnvReturn::applies(batch) => {
                 let lambda = self.cfg.gae_lambda as f32;
-                Some(e.targets(batch, &e.value(&all.x)?, n_ends, self.gamma, lambda)?)
+                Some(e.targets(batch, &e.value(&all.xc)?, n_ends, self.gamma, lambda)?)
             }
             _ => None,
         };
@@ -340,6 +366,32 @@ impl Saver {
     }
 }
 
+impl Saver {
+    /// The paper's update: one optimiser step on the whole batch.
+    fn update_one_step(&mut self, batch: &Batch) -> Result<UpdateStats> {
+        let s = self.start(batch)?;
+        let (b, d) = (batch.len(), self.layout.aligned_dim);
+        let action_dim = self.layout.action_dim();
+        let rows = StepRows {
+            fwd: &s.fwd,
+            returns: Tensor::from_slice(&s.returns_host, (b, d), &self.dev)?,
+            target: &s.target,
+            adv: &s.adv_host,
+            env: s
+                .env
+                .as_ref()
+                .map(|t| EnvReturn::rows(t, batch, None, None, action_dim, &self.dev))
+                .transpose()?,
+        };
+        let step = self.step_loss(&rows)?;
+        // The PCPN's step on this batch, computed before anything changes.
+        let tune = self.tune_grads(&s.fwd.x, batch)?;
+        let (losses, dmu) = self.take_step(step)?;
+        let tune_loss = self.apply_tune(tune)?;
+        self.finish(batch, s, dmu, losses, tune_loss)
+    }
+}
+
 impl Algorithm for Saver {
     fn set_grad_path(&mut self, path: GradPath) {
         self.path = path;
@@ -361,33 +413,28 @@ impl Algorithm for Saver {
     }
 
     fn update(&mut self, batch: &Batch) -> Result<UpdateStats> {
-        if !self.cfg.one_step(batch.len()) {
-            return self.update_epochs(batch);
-        }
-        let s = self.start(batch)?;
-        let (b, d) = (batch.len(), self.layout.aligned_dim);
-        let action_dim = self.layout.action_dim();
-        let rows = StepRows {
-            fwd: &s.fwd,
-            returns: Tensor::from_slice(&s.returns_host, (b, d), &self.dev)?,
-            target: &s.target,
-            adv: &s.adv_host,
-            env: s
-                .env
-                .as_ref()
-                .map(|t| EnvReturn::rows(t, batch, None, action_dim, &self.dev))
-                .transpose()?,
+        let stats = if self.cfg.one_step(batch.len()) {
+            self.update_one_step(batch)?
+        } else {
+            self.update_epochs(batch)?
         };
-        let step = self.step_loss(&rows)?;
-        // The PCPN's step on this batch, computed before anything changes.
-        let tune = self.tune_grads(&s.fwd.x, batch)?;
-        let (losses, dmu) = self.take_step(step)?;
-        let tune_loss = self.apply_tune(tune)?;
-        self.finish(batch, s, dmu, losses, tune_loss)
+        // With `saver.obs_norm` the update read the statistics the actors acted with;
+        // the batch joins them for the weights published next.
+        if let Some(s) = &mut self.obs_norm {
+            s.update(&batch.obs);
+        }
+        Ok(stats)
     }
 
     fn policy_tensors(&self) -> Result<Vec<NamedTensor>> {
-        checkpoint::to_named_all(&self.agent.params().tensors()?)
+        let mut t = checkpoint::to_named_all(&self.agent.params().tensors()?)?;
+        t.extend(
+            self.obs_norm
+                .as_ref()
+                .map(|s| s.weights())
+                .unwrap_or_default(),
+        );
+        Ok(t)
     }
 
     fn optimizer_steps(&self) -> u64 {
@@ -410,6 +457,9 @@ impl Algorithm for Saver {
         if let Some(e) = &self.env {
             state.tensors.push(e.state(&self.dev)?);
         }
+        if let Some(s) = &self.obs_norm {
+            state.tensors.extend(s.state(OBS_NORM_STATE)?);
+        }
         Ok(state)
     }
 
@@ -423,6 +473,9 @@ impl Algorithm for Saver {
         if let Some(e) = &self.env {
             e.restore(get)?;
         }
+        if let Some(s) = &mut self.obs_norm {
+            *s = RunningStats::restore(get, OBS_NORM_STATE, s.mean.len())?;
+        }
         if let Some(t) = &mut self.tuner {
             t.restore(get, numbers)?;
             self.pcpn = self.pcpn.refreshed(t.frozen()?)?;
@@ -431,5 +484,7 @@ impl Algorithm for Saver {
     }
 }
 
+#[cfg(test)]
+mod obs_norm_tests;
 #[cfg(test)]
 mod signal_tests;

@@ -586,5 +586,7 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         gae_lambda: 1.0,
         target_kl: 0.0,
         env_reward: 0.0,
+        env_clip: 0.0,
+        obs_norm: false,
     }
 }

@@ -206,6 +206,8 @@ impl RunConfig {
                 gae_lambda: 1.0,
                 target_kl: 0.0,
                 env_reward: 0.0,
+                env_clip: 0.0,
+                obs_norm: false,
             },
             qrrl: QrrlConfig::default(),
             ppo: PpoConfig::default(),
@@ -517,6 +519,17 @@ mod tests {
         c.saver.epochs = 4;
         crate::algo::validate(&c).unwrap();
         (c.saver.target_kl, c.saver.epochs) = (0.0, 1);
+        for bad in [-0.1, 1.0, f64::NAN, f64::INFINITY] {
+            c.saver.env_clip = bad;
+            let e = crate::algo::validate(&c).unwrap_err().to_string();
+            assert!(
+                e.contains("saver.env_clip") && e.contains("not in [0, 1)"),
+                "{e}"
+            );
+        }
+        c.saver.env_clip = 0.2;
+        crate::algo::validate(&c).unwrap();
+        c.saver.env_clip = 0.0;
         c.saver.epochs = 0;
         let e = crate::algo::validate(&c).unwrap_err().to_string();
         assert!(

@@ -74,6 +74,18 @@ pub struct SaverConfig {
     /// over the batch. 0: off (the paper, and every preset).
     #[serde(default)]
     pub env_reward: f64,
+    /// ε of a clipped env-return term over [`Self::epochs`]' passes (docs/ALGORITHM.md
+    /// §7.2): the term's policy gradient becomes PPO's surrogate
+    /// −mean min(ρ·Â_r, clip(ρ, 1 − ε, 1 + ε)·Â_r), ρ = π(a|o)/μ(a|o) to the policy that
+    /// acted, so a row stops pushing once its ratio has moved ε the way its advantage
+    /// wants. 0: off (the plain −mean Â_r·log π on every pass).
+    #[serde(default)]
+    pub env_clip: f64,
+    /// Normalise the observations the agent and the critics read by their running mean
+    /// and variance (SB3's `VecNormalize`, as `ppo.obs_norm`; the statistics travel with
+    /// the weights); the PCPN reads them raw, as it was pretrained. false: raw (the paper).
+    #[serde(default)]
+    pub obs_norm: bool,
 }
 
 fn no_trace_decay() -> f64 {
@@ -145,6 +157,12 @@ impl SaverConfig {
                 "stops the passes of saver.epochs over minibatches of \
                  saver.minibatch_size; with one step on the whole batch there is nothing to stop"
                     .into(),
+            );
+        }
+        if !(0.0..1.0).contains(&s.env_clip) {
+            return bad(
+                "saver.env_clip",
+                format!("{} is not in [0, 1) (0: off)", s.env_clip),
             );
         }
         if !(1..=1000).contains(&s.epochs) {

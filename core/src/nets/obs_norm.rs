@@ -6,6 +6,7 @@
 //! Python package, `saver eval`) normalises alike.
 
 use crate::{CoreError, Result};
+use candle_core::{DType, Device, Tensor};
 use saver_proto::NamedTensor;
 
 /// The weights' tensor of the observation mean, [obs_dim].
@@ -93,6 +94,55 @@ impl RunningStats {
             },
         ]
     }
+}
+
+impl RunningStats {
+    /// `obs` [k, n] normalised on its device as [`normalize`] does on the host.
+    pub fn normalize_tensor(&self, obs: &Tensor) -> Result<Tensor> {
+        let n = self.mean.len();
+        let dev = obs.device();
+        let mean = Tensor::from_vec(self.mean_f32(), (1, n), dev)?;
+        let std = Tensor::from_vec(self.std(), (1, n), dev)?;
+        Ok(obs
+            .broadcast_sub(&mean)?
+            .broadcast_div(&std)?
+            .clamp(-OBS_CLIP, OBS_CLIP)?)
+    }
+
+    /// The checkpoint tensors `{prefix}.count`, `.mean`, `.var` (f64, so a resumed run
+    /// goes on bit for bit).
+    pub fn state(&self, prefix: &str) -> Result<Vec<(String, Tensor)>> {
+        let f64s = |v: &[f64]| Tensor::from_slice(v, v.len(), &Device::Cpu);
+        Ok(vec![
+            (format!("{prefix}.count"), f64s(&[self.count])?),
+            (format!("{prefix}.mean"), f64s(&self.mean)?),
+            (format!("{prefix}.var"), f64s(&self.var)?),
+        ])
+    }
+
+    /// The statistics of `n` entries that [`Self::state`] saved under `prefix`.
+    pub fn restore(get: &dyn Fn(&str) -> Option<Tensor>, prefix: &str, n: usize) -> Result<Self> {
+        let read = |name: &str| read_f64s(get, &format!("{prefix}.{name}"));
+        let (count, mean, var) = (read("count")?, read("mean")?, read("var")?);
+        if count.len() != 1 || mean.len() != n || var.len() != n {
+            return Err(CoreError::Checkpoint(format!(
+                "{prefix}: saved for {} entries, this run has {n}",
+                mean.len()
+            )));
+        }
+        Ok(Self {
+            count: count[0],
+            mean,
+            var,
+        })
+    }
+}
+
+/// The saved tensor `name` as f64s; a clear error where the state has none.
+pub fn read_f64s(get: &dyn Fn(&str) -> Option<Tensor>, name: &str) -> Result<Vec<f64>> {
+    let t =
+        get(name).ok_or_else(|| CoreError::Checkpoint(format!("the saved state has no {name}")))?;
+    Ok(t.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?)
 }
 
 /// Normalises observations `obs` ([k, n] row-major) in place: clip((o − mean)/std, ±10).

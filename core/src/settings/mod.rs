@@ -161,6 +161,12 @@ pub struct SaverSettings {
     #[arg(id = "saver_env_reward", value_name = "W", long = "saver-env-reward", allow_hyphen_values = true, help = help("SAVER: weight of the env-return term, a scalar critic and policy gradient on the env's own reward where the actors send one that is not the progress reward (0: off, the paper)", "saver.env_reward"))]
     #[serde(rename = "env_reward")]
     pub saver_env_reward: Option<f64>,
+    #[arg(id = "saver_env_clip", value_name = "EPS", long = "saver-env-clip", help = help("SAVER: ε of PPO's clip on the env-return term's policy gradient over --saver-epochs' passes, the ratio taken to the policy that acted (0: off)", "saver.env_clip"))]
+    #[serde(rename = "env_clip")]
+    pub saver_env_clip: Option<f64>,
+    #[arg(id = "saver_obs_norm", value_name = "BOOL", long = "saver-obs-norm", help = help("SAVER: normalise the observations the agent and critics read by their running mean and variance (the statistics travel with the weights; the PCPN reads them raw)", "saver.obs_norm"))]
+    #[serde(rename = "obs_norm")]
+    pub saver_obs_norm: Option<bool>,
 }
 
 /// Standalone QRRL's settings: `[qrrl]` in a file (a file of an earlier version with

@@ -14,10 +14,10 @@
 //! Their state is part of the checkpoint, so a resumed run goes on exactly.
 
 use crate::config::PpoConfig;
-use crate::nets::obs_norm::{normalize, RunningStats};
+use crate::nets::obs_norm::{normalize, read_f64s, RunningStats};
 use crate::rollout::Batch;
 use crate::{CoreError, Result};
-use candle_core::{DType, Device, Tensor};
+use candle_core::{Device, Tensor};
 use saver_proto::NamedTensor;
 
 /// Scaled rewards are clipped to ±this (SB3's `clip_reward`).
@@ -109,55 +109,25 @@ impl Normalizers {
     /// Their checkpointed state (f64, so a resumed run goes on bit for bit).
     pub(super) fn state(&self) -> Result<Vec<(String, Tensor)>> {
         let mut out = Vec::new();
-        let dev = Device::Cpu;
-        let f64s = |v: &[f64]| Tensor::from_slice(v, v.len(), &dev);
-        let mut stats = |prefix: &str, s: &RunningStats| -> Result<()> {
-            out.push((format!("{prefix}.count"), f64s(&[s.count])?));
-            out.push((format!("{prefix}.mean"), f64s(&s.mean)?));
-            out.push((format!("{prefix}.var"), f64s(&s.var)?));
-            Ok(())
-        };
         if let Some(s) = &self.obs {
-            stats("ppo.obs_norm", s)?;
+            out.extend(s.state("ppo.obs_norm")?);
         }
         if let Some(r) = &self.reward {
-            stats("ppo.reward_norm", &r.stats)?;
-            out.push(("ppo.reward_norm.returns".into(), f64s(&r.returns)?));
+            out.extend(r.stats.state("ppo.reward_norm")?);
+            let returns = Tensor::from_slice(&r.returns, r.returns.len(), &Device::Cpu)?;
+            out.push(("ppo.reward_norm.returns".into(), returns));
         }
         Ok(out)
     }
 
     /// Restores what [`Normalizers::state`] saved.
     pub(super) fn restore(&mut self, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<()> {
-        let read = |name: &str| -> Result<Vec<f64>> {
-            let t = get(name)
-                .ok_or_else(|| CoreError::Checkpoint(format!("the saved state has no {name}")))?;
-            Ok(t.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?)
-        };
-        let stats = |prefix: &str, n: usize| -> Result<RunningStats> {
-            let (count, mean, var) = (
-                read(&format!("{prefix}.count"))?,
-                read(&format!("{prefix}.mean"))?,
-                read(&format!("{prefix}.var"))?,
-            );
-            if count.len() != 1 || mean.len() != n || var.len() != n {
-                return Err(CoreError::Checkpoint(format!(
-                    "{prefix}: saved for {} entries, this run has {n}",
-                    mean.len()
-                )));
-            }
-            Ok(RunningStats {
-                count: count[0],
-                mean,
-                var,
-            })
-        };
         if let Some(s) = &mut self.obs {
-            *s = stats("ppo.obs_norm", s.mean.len())?;
+            *s = RunningStats::restore(get, "ppo.obs_norm", s.mean.len())?;
         }
         if let Some(r) = &mut self.reward {
-            r.stats = stats("ppo.reward_norm", 1)?;
-            r.returns = read("ppo.reward_norm.returns")?;
+            r.stats = RunningStats::restore(get, "ppo.reward_norm", 1)?;
+            r.returns = read_f64s(get, "ppo.reward_norm.returns")?;
         }
         Ok(())
     }

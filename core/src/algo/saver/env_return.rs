@@ -53,6 +53,20 @@ pub(super) struct EnvRows {
     pub adv: Tensor,
     /// [N, action_dim]: the actions taken.
     pub actions: Tensor,
+    /// With `saver.env_clip` ε > 0: [N] log μ(a|o) of the policy that acted, and ε.
+    pub clip: Option<(Vec<f32>, f64)>,
+}
+
+/// The term's policy gradient at the policy outputs of some rows.
+pub(super) struct EnvGrads {
+    /// The unit loss: −mean Â_r·log π, or PPO's clipped surrogate with `clip`.
+    pub loss: f32,
+    /// (dμ, d log σ) of that loss: the direction the term pushes.
+    pub push: (Tensor, Tensor),
+    /// (dμ, d log σ) of the plain −mean Â_r·log π (the push itself without a clip), whose
+    /// norm sets the scale c, so that rows a clip has stopped do not make the others
+    /// push harder.
+    pub plain: (Tensor, Tensor),
 }
 
 /// A batch's targets and advantages of the term, on the host.
@@ -161,13 +175,16 @@ impl EnvReturn {
 
     /// The unit-weight policy-gradient loss `−mean Â_r · log π(a | o)` at the policy
     /// outputs `mu`, `log_std` (their values only) and its gradient with respect to
-    /// them: (loss, dμ, d log σ).
+    /// them; with `rows.clip` (log μ(a|o), ε) the push is PPO's clipped surrogate
+    /// `−mean min(ρ·Â_r, clip(ρ, 1 − ε, 1 + ε)·Â_r)`, ρ = π(a|o)/μ(a|o), whose gradient is
+    /// that of `−mean ω·log π` with the detached weights ω = ρ·Â_r, 0 on the rows where
+    /// the clip holds (ρ > 1 + ε with Â_r > 0, ρ < 1 − ε with Â_r < 0).
     pub(super) fn policy_grads(
         layout: &EnvLayout,
         mu: &Tensor,
         log_std: &Tensor,
         rows: &EnvRows,
-    ) -> Result<(f32, Tensor, Tensor)> {
+    ) -> Result<EnvGrads> {
         let at = OutputLeaves::of(mu, log_std)?;
         let log_pi = gaussian_log_prob(
             layout,
@@ -175,9 +192,32 @@ impl EnvReturn {
             at.log_std.as_tensor(),
             &rows.actions,
         )?;
-        let loss = ((&rows.adv * log_pi)?.mean_all()? * -1.0)?;
-        let (g_mu, g_ls) = at.grads(&loss)?;
-        Ok((loss.to_scalar::<f32>()?, g_mu, g_ls))
+        let loss = ((&rows.adv * &log_pi)?.mean_all()? * -1.0)?;
+        let plain = at.grads(&loss)?;
+        let Some((logp_b, eps)) = &rows.clip else {
+            return Ok(EnvGrads {
+                loss: loss.to_scalar::<f32>()?,
+                push: plain.clone(),
+                plain,
+            });
+        };
+        let (logp, adv) = (log_pi.to_vec1::<f32>()?, rows.adv.to_vec1::<f32>()?);
+        let (mut weights, mut surrogate) = (Vec::with_capacity(adv.len()), 0f64);
+        for ((lp, lb), a) in logp.iter().zip(logp_b).zip(&adv) {
+            let (rho, a) = (((lp - lb) as f64).exp(), *a as f64);
+            let clipped = rho.clamp(1.0 - eps, 1.0 + eps);
+            surrogate += (rho * a).min(clipped * a);
+            let held = (a > 0.0 && rho > 1.0 + eps) || (a < 0.0 && rho < 1.0 - eps);
+            weights.push(if held { 0.0 } else { (rho * a) as f32 });
+        }
+        let n = adv.len().max(1);
+        let weights = Tensor::from_vec(weights, adv.len(), log_pi.device())?;
+        let push = at.grads(&((weights * &log_pi)?.mean_all()? * -1.0)?)?;
+        Ok(EnvGrads {
+            loss: (-surrogate / n as f64) as f32,
+            push,
+            plain,
+        })
     }
 
     /// The scale c of the unit policy gradient (g_r) beside the vector term's (g_v),
@@ -200,10 +240,13 @@ impl EnvReturn {
     }
 
     /// The rows `idx` (all with `None`) of a batch's targets as one step's [`EnvRows`].
+    /// With `clip` (the batch's log μ(a|o) per step, ε) the rows carry theirs for PPO's
+    /// clipped surrogate.
     pub(super) fn rows(
         t: &EnvTargets,
         batch: &Batch,
         idx: Option<&[usize]>,
+        clip: Option<(&[f32], f64)>,
         action_dim: usize,
         dev: &Device,
     ) -> Result<EnvRows> {
@@ -215,6 +258,7 @@ impl EnvReturn {
             returns: matrix(&pick(&t.returns, 1), n, 1, dev)?,
             adv: Tensor::from_vec(pick(&t.advantages, 1), n, dev)?,
             actions: matrix(&pick(&batch.actions, action_dim), n, action_dim, dev)?,
+            clip: clip.map(|(logp_b, eps)| (pick(logp_b, 1), eps)),
         })
     }
 
@@ -350,7 +394,7 @@ mod tests {
         let last = crate::algo::matrix(&b.last_obs, 2, l.obs_dim, &Device::Cpu).unwrap();
         let fwd = s.forward(last).unwrap();
         let boot: Vec<f32> = env
-            .value(&fwd.x)
+            .value(&fwd.xc)
             .unwrap()
             .flatten_all()
             .unwrap()
@@ -395,26 +439,15 @@ mod tests {
             returns: Tensor::zeros((3, 1), DType::F32, &dev).unwrap(),
             adv: Tensor::new(&adv, &dev).unwrap(),
             actions: Tensor::from_slice(&actions, (3, 2), &dev).unwrap(),
+            clip: None,
         };
         let t = |v: &[f32]| Tensor::from_slice(v, (3, 2), &dev).unwrap();
-        let (pg, dmu, dls) =
-            super::EnvReturn::policy_grads(&l, &t(&mu), &t(&log_std), &rows).unwrap();
-        let mut want = 0.0f64;
-        for r in 0..3 {
-            let mut logp = 0.0f64;
-            for j in 0..2 {
-                let (m, ls, a) = (
-                    mu[2 * r + j] as f64,
-                    log_std[2 * r + j] as f64,
-                    actions[2 * r + j] as f64,
-                );
-                logp += -(a - m).powi(2) / (2.0 * (2.0 * ls).exp())
-                    - ls
-                    - 0.5 * (2.0 * std::f64::consts::PI).ln();
-            }
-            want += adv[r] as f64 * logp;
-        }
-        want *= -1.0 / 3.0;
+        let e = super::EnvReturn::policy_grads(&l, &t(&mu), &t(&log_std), &rows).unwrap();
+        let (pg, (dmu, dls)) = (e.loss, e.push);
+        let want = -(0..3)
+            .map(|r| adv[r] as f64 * row_log_prob(&mu, &log_std, &actions, r))
+            .sum::<f64>()
+            / 3.0;
         assert!((pg as f64 - want).abs() < 1e-5, "{pg} against {want}");
         // Its gradient: dL/dμ = −Â (a − μ) / (3σ²), dL/dlog σ = −Â ((a − μ)²/σ² − 1) / 3.
         let (dmu, dls) = (dmu.to_vec2::<f32>().unwrap(), dls.to_vec2::<f32>().unwrap());
@@ -438,6 +471,73 @@ mod tests {
         let r = Tensor::new(&[[0.0f32, 10.0]], &dev).unwrap();
         assert_eq!(env.scale([&v, &z], [&r, &z]).unwrap(), 0.25);
         assert_eq!(env.scale([&v, &z], [&z, &z]).unwrap(), 0.0);
+    }
+
+    /// log π(a|o) of row r of 2-action rows: Σ_i −(a_i − μ_i)² / (2σ_i²) − log σ_i − ½ log 2π.
+    fn row_log_prob(mu: &[f32], log_std: &[f32], actions: &[f32], r: usize) -> f64 {
+        (2 * r..2 * r + 2)
+            .map(|i| {
+                let (m, ls, a) = (mu[i] as f64, log_std[i] as f64, actions[i] as f64);
+                -(a - m).powi(2) / (2.0 * (2.0 * ls).exp())
+                    - ls
+                    - 0.5 * (2.0 * std::f64::consts::PI).ln()
+            })
+            .sum()
+    }
+
+    /// PPO's clip on the term (`saver.env_clip` ε = 0.2), the behaviour's log μ(a|o) set
+    /// so that ρ = 1.5, 0.5, 1.1 on rows with Â = 1, −0.5, 0.25: rows 0 and 1 have moved
+    /// past 1 ± ε the way their advantage wants, so they push nothing; row 2 pushes
+    /// ρ·Â = 0.275 times its log-likelihood's gradient. The surrogate is
+    /// −(min(1.5, 1.2)·1 + min(−0.25, −0.4) + 0.275) / 3 = −(1.2 − 0.4 + 0.275) / 3, and the
+    /// plain gradient (for the scale) is the unclipped one's.
+    #[test]
+    fn the_clipped_term_stops_the_rows_that_moved_past_the_clip() {
+        let (_, l) = saver(0.5);
+        let dev = Device::Cpu;
+        let mu = [0.1f32, -0.2, 0.3, 0.0, -0.5, 0.4];
+        let log_std = [-1.0f32, -0.5, 0.0, -0.2, -0.8, -1.2];
+        let actions = [0.3f32, -0.1, 0.0, 0.5, -0.2, 0.9];
+        let adv = [1.0f32, -0.5, 0.25];
+        let rho = [1.5f64, 0.5, 1.1];
+        let logp_b = (0..3)
+            .map(|r| (row_log_prob(&mu, &log_std, &actions, r) - rho[r].ln()) as f32)
+            .collect();
+        let rows = |clip| super::EnvRows {
+            returns: Tensor::zeros((3, 1), DType::F32, &dev).unwrap(),
+            adv: Tensor::new(&adv, &dev).unwrap(),
+            actions: Tensor::from_slice(&actions, (3, 2), &dev).unwrap(),
+            clip,
+        };
+        let t = |v: &[f32]| Tensor::from_slice(v, (3, 2), &dev).unwrap();
+        let grads =
+            |rows| super::EnvReturn::policy_grads(&l, &t(&mu), &t(&log_std), &rows).unwrap();
+        let (plain, clipped) = (grads(rows(None)), grads(rows(Some((logp_b, 0.2)))));
+        let want = -(1.2 - 0.4 + 0.275) / 3.0;
+        assert!(
+            (clipped.loss as f64 - want).abs() < 1e-5,
+            "{} against {want}",
+            clipped.loss
+        );
+        let v = |x: &Tensor| x.to_vec2::<f32>().unwrap();
+        for (p, c) in [
+            (&plain.push.0, &clipped.push.0),
+            (&plain.push.1, &clipped.push.1),
+        ] {
+            let (p, c) = (v(p), v(c));
+            for j in 0..2 {
+                assert_eq!((c[0][j], c[1][j]), (0.0, 0.0), "held rows push");
+                // Plain row 2 is −0.25·∇log π / 3; clipped −0.275·∇log π / 3.
+                assert!(
+                    (c[2][j] - 1.1 * p[2][j]).abs() < 1e-6,
+                    "row 2: {} vs {}",
+                    c[2][j],
+                    p[2][j]
+                );
+            }
+        }
+        assert_eq!(v(&clipped.plain.0), v(&plain.push.0));
+        assert_eq!(v(&clipped.plain.1), v(&plain.push.1));
     }
 
     /// Past success (`continue_past_success`) a step that starts inside the success box

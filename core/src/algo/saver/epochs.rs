@@ -42,7 +42,7 @@ impl Saver {
         let mut dmu = Some(vec![0f32; b * mu_dim]);
         let mut losses = Vec::with_capacity(self.cfg.epochs * m);
         let mut order: Vec<usize> = (0..b).collect();
-        let behaviour = if self.cfg.target_kl > 0.0 {
+        let behaviour = if self.cfg.target_kl > 0.0 || self.cfg.env_clip > 0.0 {
             Some(crate::algo::behaviour_log_probs(
                 &self.layout,
                 batch,
@@ -63,7 +63,7 @@ impl Saver {
                 let n = idx.len();
                 let fwd =
                     self.forward(Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?)?;
-                if let Some(logp_b) = &behaviour {
+                if let Some(logp_b) = behaviour.as_ref().filter(|_| self.cfg.target_kl > 0.0) {
                     let first = epoch == 0 && j == 0;
                     if !first
                         && self.approx_kl(&fwd, &rows(&batch.actions, a), &rows(logp_b, 1))?
@@ -84,7 +84,13 @@ impl Saver {
                     env: s
                         .env
                         .as_ref()
-                        .map(|t| EnvReturn::rows(t, batch, Some(idx), a, &self.dev))
+                        .map(|t| {
+                            let clip = behaviour
+                                .as_deref()
+                                .filter(|_| self.cfg.env_clip > 0.0)
+                                .map(|logp_b| (logp_b, self.cfg.env_clip));
+                            EnvReturn::rows(t, batch, Some(idx), clip, a, &self.dev)
+                        })
                         .transpose()?,
                 };
                 let step = self.step_loss(&step_rows)?;

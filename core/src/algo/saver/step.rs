@@ -100,13 +100,13 @@ impl Saver {
         let agent = match (env, &a.grads) {
             (Some((term, env_rows)), Some((g_mu, g_ls))) => {
                 // The env term's push on μ and log σ, scaled to w times the PCPN's.
-                let (pg, e_mu, e_ls) =
-                    EnvReturn::policy_grads(&self.layout, &f.mu, &f.log_std, env_rows)?;
-                let c = term.scale([g_mu, g_ls], [&e_mu, &e_ls])?;
-                let push = surrogate(&f.mu, &f.log_std, &(e_mu * c as f64)?, &(e_ls * c as f64)?)?;
-                let v_r = term.critic_loss(&f.x, env_rows, self.cfg.lambda_critic)?;
+                let e = EnvReturn::policy_grads(&self.layout, &f.mu, &f.log_std, env_rows)?;
+                let c = term.scale([g_mu, g_ls], [&e.plain.0, &e.plain.1])? as f64;
+                let push = surrogate(&f.mu, &f.log_std, &(e.push.0 * c)?, &(e.push.1 * c)?)?;
+                let pg = e.loss;
+                let v_r = term.critic_loss(&f.xc, env_rows, self.cfg.lambda_critic)?;
                 env_pg = check_finite("env_pg_loss", pg)?;
-                env_scale = check_finite("env_pg_scale", c)?;
+                env_scale = check_finite("env_pg_scale", c as f32)?;
                 env_critic = check_finite("env_critic_loss", v_r.to_scalar::<f32>()?)?;
                 ((a.loss + push)? + v_r)?
             }
