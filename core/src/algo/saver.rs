@@ -9,6 +9,7 @@ pub(super) mod defaults;
 mod env_return;
 mod epochs;
 pub(super) mod grad;
+mod obs_scale;
 mod pcpn_tune;
 pub mod signal;
 mod stats;
@@ -18,7 +19,6 @@ mod targets;
 use crate::algo::{update_rows, Algorithm, GradPath, UpdateStats};
 use crate::config::{DeltaTarget, RunConfig, SaverConfig};
 use crate::env::{EnvLayout, Routing};
-use crate::nets::obs_norm::RunningStats;
 use crate::nets::{Agent, Critic, Pcpn};
 use crate::optim::Optimizer;
 use crate::returns::normalize_advantages;
@@ -28,6 +28,7 @@ use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
 use env_return::{EnvReturn, EnvTargets};
 use grad::{host, PcpnGrad};
+use obs_scale::ObsScale;
 use pcpn_tune::PcpnTuner;
 use saver_proto::NamedTensor;
 use signal::{noise_rank_delta, predicted_delta, SignalBatch};
@@ -53,8 +54,6 @@ const STATS_TUNED: &[&str] = &[
 const STATS: &[&str] = STATS_TUNED.split_at(STATS_TUNED.len() - 1).0;
 
 /// The env-return term's statistics, when the run has it (0 on a batch it skips).
-/// The checkpoint prefix of `saver.obs_norm`'s statistics.
-const OBS_NORM_STATE: &str = "saver.obs_norm";
 const ENV_STATS: &[&str] = &["env_pg_loss", "env_pg_scale", "env_critic_loss"];
 
 /// The SAVER learner state.
@@ -97,9 +96,9 @@ pub struct Saver {
     /// In a run that goes on past success, the success box: a step that starts inside
     /// it has no vector advantage (its progress is only noise around the goal).
     at_goal: Option<crate::env::SuccessRule>,
-    /// `saver.obs_norm`: the running statistics the agent's and critics' observations are
-    /// normalised by (the PCPN reads them raw); published with the weights.
-    obs_norm: Option<RunningStats>,
+    /// `saver.obs_norm`: how the agent and critics see the observations (the PCPN reads
+    /// them raw); published with the weights.
+    obs_norm: Option<ObsScale>,
 }
 
 /// SAVER's registration ([`crate::algo::entry`]).
@@ -161,10 +160,7 @@ impl Saver {
                 .continue_past_success
                 .then(|| config.env.success_rule())
                 .flatten(),
-            obs_norm: config
-                .saver
-                .obs_norm
-                .then(|| RunningStats::new(layout.obs_dim)),
+            obs_norm: ObsScale::of(config.saver.obs_norm, &config.env.bounds()),
         })
     }
 
@@ -243,7 +239,7 @@ impl Saver {
     /// Agent and critic over the observations `obs`.
     fn forward(&self, obs: Tensor) -> Result<Forward> {
         let seen = match &self.obs_norm {
-            Some(s) => Some(s.normalize_tensor(&obs)?),
+            Some(s) => Some(s.normalize(&obs)?),
             None => None,
         };
         let out = self.agent.forward(seen.as_ref().unwrap_or(&obs))?;
@@ -421,7 +417,7 @@ impl Algorithm for Saver {
         // With `saver.obs_norm` the update read the statistics the actors acted with;
         // the batch joins them for the weights published next.
         if let Some(s) = &mut self.obs_norm {
-            s.update(&batch.obs);
+            s.learn(&batch.obs);
         }
         Ok(stats)
     }
@@ -458,7 +454,7 @@ impl Algorithm for Saver {
             state.tensors.push(e.state(&self.dev)?);
         }
         if let Some(s) = &self.obs_norm {
-            state.tensors.extend(s.state(OBS_NORM_STATE)?);
+            state.tensors.extend(s.state()?);
         }
         Ok(state)
     }
@@ -474,7 +470,7 @@ impl Algorithm for Saver {
             e.restore(get)?;
         }
         if let Some(s) = &mut self.obs_norm {
-            *s = RunningStats::restore(get, OBS_NORM_STATE, s.mean.len())?;
+            s.restore(get)?;
         }
         if let Some(t) = &mut self.tuner {
             t.restore(get, numbers)?;

@@ -587,6 +587,6 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         target_kl: 0.0,
         env_reward: 0.0,
         env_clip: 0.0,
-        obs_norm: false,
+        obs_norm: crate::config::ObsNorm::Off,
     }
 }

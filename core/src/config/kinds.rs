@@ -116,6 +116,21 @@ pub enum DeltaTarget {
     Noise,
 }
 
+/// How SAVER's agent and critics see the observations (`saver.obs_norm`; the PCPN
+/// always reads them raw, as it was pretrained).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ObsNorm {
+    /// As the env gives them (the paper).
+    #[default]
+    Off,
+    /// By their running mean and variance (SB3's `VecNormalize`, as `ppo.obs_norm`).
+    Running,
+    /// Mapped from the env's declared bounds to [−1, 1]: (o − (low + high)/2) / ((high −
+    /// low)/2), fixed for the whole run.
+    Bounds,
+}
+
 /// Where PCPN pretraining samples come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]

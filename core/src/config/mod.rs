@@ -13,7 +13,7 @@ pub(crate) mod unbounded;
 pub mod upgrade;
 
 pub use head::{HeadConfig, LOG_STD_INIT};
-pub use kinds::{Algo, DeltaTarget, Mode, OptimizerKind, SampleDistribution};
+pub use kinds::{Algo, DeltaTarget, Mode, ObsNorm, OptimizerKind, SampleDistribution};
 pub use ppo::PpoConfig;
 pub use pretrain::{
     paper_lr, paper_pretrain_batches, preset_or_angle, PretrainConfig, PRETRAIN_EVAL_BATCHES,
@@ -207,7 +207,7 @@ impl RunConfig {
                 target_kl: 0.0,
                 env_reward: 0.0,
                 env_clip: 0.0,
-                obs_norm: false,
+                obs_norm: crate::config::ObsNorm::Off,
             },
             qrrl: QrrlConfig::default(),
             ppo: PpoConfig::default(),

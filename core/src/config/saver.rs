@@ -1,7 +1,7 @@
 //! SAVER's settings (`[saver]`; docs/ALGORITHM.md §7): the loss constants and the
 //! update's options, with their own checks ([`SaverConfig::validate`]).
 
-use super::{zero_is_none, DeltaTarget};
+use super::{zero_is_none, DeltaTarget, ObsNorm};
 use crate::env::EnvSpec;
 use crate::{CoreError, Result};
 use serde::{Deserialize, Serialize};
@@ -81,11 +81,12 @@ pub struct SaverConfig {
     /// wants. 0: off (the plain −mean Â_r·log π on every pass).
     #[serde(default)]
     pub env_clip: f64,
-    /// Normalise the observations the agent and the critics read by their running mean
-    /// and variance (SB3's `VecNormalize`, as `ppo.obs_norm`; the statistics travel with
-    /// the weights); the PCPN reads them raw, as it was pretrained. false: raw (the paper).
+    /// How the agent and the critics see the observations: raw (the paper), by their
+    /// running mean and variance, or mapped from the env's declared bounds to [−1, 1];
+    /// the mean and scale travel with the weights, so every actor does the same. The
+    /// PCPN reads them raw, as it was pretrained.
     #[serde(default)]
-    pub obs_norm: bool,
+    pub obs_norm: ObsNorm,
 }
 
 fn no_trace_decay() -> f64 {

@@ -80,35 +80,39 @@ impl RunningStats {
 
     /// The two tensors the policy's weights carry.
     pub fn weights(&self) -> Vec<NamedTensor> {
-        let n = self.mean.len();
-        vec![
-            NamedTensor {
-                name: OBS_MEAN.into(),
-                shape: vec![n],
-                data: self.mean_f32(),
-            },
-            NamedTensor {
-                name: OBS_STD.into(),
-                shape: vec![n],
-                data: self.std(),
-            },
-        ]
+        weights(self.mean_f32(), self.std())
     }
 }
 
-impl RunningStats {
-    /// `obs` [k, n] normalised on its device as [`normalize`] does on the host.
-    pub fn normalize_tensor(&self, obs: &Tensor) -> Result<Tensor> {
-        let n = self.mean.len();
-        let dev = obs.device();
-        let mean = Tensor::from_vec(self.mean_f32(), (1, n), dev)?;
-        let std = Tensor::from_vec(self.std(), (1, n), dev)?;
-        Ok(obs
-            .broadcast_sub(&mean)?
-            .broadcast_div(&std)?
-            .clamp(-OBS_CLIP, OBS_CLIP)?)
-    }
+/// The weights' [`OBS_MEAN`] and [`OBS_STD`] of a mean and scale.
+pub fn weights(mean: Vec<f32>, std: Vec<f32>) -> Vec<NamedTensor> {
+    let n = mean.len();
+    vec![
+        NamedTensor {
+            name: OBS_MEAN.into(),
+            shape: vec![n],
+            data: mean,
+        },
+        NamedTensor {
+            name: OBS_STD.into(),
+            shape: vec![n],
+            data: std,
+        },
+    ]
+}
 
+/// `obs` [k, n] normalised on its device as [`normalize`] does on the host.
+pub fn normalize_tensor(obs: &Tensor, mean: &[f32], std: &[f32]) -> Result<Tensor> {
+    let (n, dev) = (mean.len(), obs.device());
+    let mean = Tensor::from_slice(mean, (1, n), dev)?;
+    let std = Tensor::from_slice(std, (1, n), dev)?;
+    Ok(obs
+        .broadcast_sub(&mean)?
+        .broadcast_div(&std)?
+        .clamp(-OBS_CLIP, OBS_CLIP)?)
+}
+
+impl RunningStats {
     /// The checkpoint tensors `{prefix}.count`, `.mean`, `.var` (f64, so a resumed run
     /// goes on bit for bit).
     pub fn state(&self, prefix: &str) -> Result<Vec<(String, Tensor)>> {

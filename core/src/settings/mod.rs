@@ -7,7 +7,7 @@
 //! over the one below ([`overlay`]), read back as a RunConfig and validated.
 
 use crate::config::{
-    Algo, DeltaTarget, Mode, OptimizerKind, PretrainConfig, RunConfig, SampleDistribution,
+    Algo, DeltaTarget, Mode, ObsNorm, OptimizerKind, PretrainConfig, RunConfig, SampleDistribution,
     DEFAULT_MAX_LAG,
 };
 use crate::env::{EnvBounds, EnvKind, EnvLayout, EnvSpec, SuccessRule};
@@ -164,9 +164,9 @@ pub struct SaverSettings {
     #[arg(id = "saver_env_clip", value_name = "EPS", long = "saver-env-clip", help = help("SAVER: ε of PPO's clip on the env-return term's policy gradient over --saver-epochs' passes, the ratio taken to the policy that acted (0: off)", "saver.env_clip"))]
     #[serde(rename = "env_clip")]
     pub saver_env_clip: Option<f64>,
-    #[arg(id = "saver_obs_norm", value_name = "BOOL", long = "saver-obs-norm", help = help("SAVER: normalise the observations the agent and critics read by their running mean and variance (the statistics travel with the weights; the PCPN reads them raw)", "saver.obs_norm"))]
+    #[arg(id = "saver_obs_norm", long = "saver-obs-norm", value_enum, help = help("SAVER: how the agent and critics see the observations: raw (off), by their running mean and variance (running), or mapped from the env's declared bounds to [-1, 1] (bounds); the mean and scale travel with the weights, the PCPN reads them raw", "saver.obs_norm"))]
     #[serde(rename = "obs_norm")]
-    pub saver_obs_norm: Option<bool>,
+    pub saver_obs_norm: Option<ObsNorm>,
 }
 
 /// Standalone QRRL's settings: `[qrrl]` in a file (a file of an earlier version with

@@ -3,14 +3,14 @@
 
 use crate::algo::tests::{random_batch, random_pcpn};
 use crate::algo::{Algorithm, Saver};
-use crate::config::Algo;
+use crate::config::{Algo, ObsNorm};
 use crate::env::{EnvKind, EnvSpec};
 use crate::nets::obs_norm::{OBS_MEAN, OBS_STD};
 use crate::rollout::Batch;
 use candle_core::{DType, Device};
 use saver_proto::NamedTensor;
 
-fn saver(obs_norm: bool) -> (Saver, Batch) {
+fn saver(obs_norm: ObsNorm) -> (Saver, Batch) {
     let spec = EnvSpec::new(EnvKind::Angle, 2).unwrap();
     let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
     config.saver.obs_norm = obs_norm;
@@ -42,8 +42,8 @@ fn agent_bits(s: &Saver) -> Vec<u32> {
 /// checkpoint gives a fresh learner the same statistics.
 #[test]
 fn the_statistics_the_actors_acted_with_are_the_ones_the_update_reads() {
-    let (mut on, mut batch) = saver(true);
-    let (mut off, _) = saver(false);
+    let (mut on, mut batch) = saver(ObsNorm::Running);
+    let (mut off, _) = saver(ObsNorm::Off);
     let o = on.layout.obs_dim;
     for row in batch.obs.chunks_exact_mut(o) {
         row[0] += 3.0;
@@ -87,7 +87,7 @@ fn the_statistics_the_actors_acted_with_are_the_ones_the_update_reads() {
     off.update(&batch).unwrap();
     assert_ne!(agent_bits(&on), agent_bits(&off));
     let saved = on.save_state().unwrap();
-    let (mut fresh, _) = saver(true);
+    let (mut fresh, _) = saver(ObsNorm::Running);
     fresh
         .restore_state(&|name: &str| saved.get(name), &saved.numbers)
         .unwrap();
@@ -98,10 +98,34 @@ fn the_statistics_the_actors_acted_with_are_the_ones_the_update_reads() {
     assert_eq!(weights(&fresh), weights(&on));
     // A checkpoint without them (a run without the option) is refused by name.
     let plain = off.save_state().unwrap();
-    let (mut strict, _) = saver(true);
+    let (mut strict, _) = saver(ObsNorm::Running);
     let err = strict
         .restore_state(&|name: &str| plain.get(name), &plain.numbers)
         .unwrap_err()
         .to_string();
     assert!(err.contains("saver.obs_norm"), "{err}");
+}
+
+/// `bounds`: the weights carry the declared range's midpoints and half-widths (on angle
+/// d = 2, [−1, 1] for the position and goal entries: mean 0, scale 1, and the angles'
+/// own ranges), the same after an update, and the checkpoint holds nothing of them.
+#[test]
+fn the_bounds_scale_is_the_declared_range_for_the_whole_run() {
+    let (mut s, batch) = saver(ObsNorm::Bounds);
+    let bounds = EnvSpec::new(EnvKind::Angle, 2).unwrap().bounds();
+    let pairs = bounds.obs_low.iter().zip(&bounds.obs_high);
+    let mean: Vec<f32> = pairs.clone().map(|(l, h)| (l + h) / 2.0).collect();
+    let std: Vec<f32> = pairs.map(|(l, h)| (h - l) / 2.0).collect();
+    let carried = |s: &Saver| {
+        let t = s.policy_tensors().unwrap();
+        (find(&t, OBS_MEAN).unwrap(), find(&t, OBS_STD).unwrap())
+    };
+    assert_eq!(carried(&s), (mean.clone(), std.clone()));
+    s.update(&batch).unwrap();
+    assert_eq!(carried(&s), (mean, std));
+    let state = s.save_state().unwrap();
+    assert!(state
+        .tensors
+        .iter()
+        .all(|(n, _)| !n.starts_with("saver.obs_norm")));
 }
