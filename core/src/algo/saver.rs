@@ -368,6 +368,11 @@ impl Saver {
         let s = self.start(batch)?;
         let (b, d) = (batch.len(), self.layout.aligned_dim);
         let action_dim = self.layout.action_dim();
+        // PPO's clip on the env term: to the policy that acted (a lagged batch's, async).
+        let behaviour = (self.cfg.env_clip > 0.0 && s.env.is_some())
+            .then(|| super::behaviour_log_probs(&self.layout, batch, &self.dev))
+            .transpose()?;
+        let clip = behaviour.as_deref().map(|l| (l, self.cfg.env_clip));
         let rows = StepRows {
             fwd: &s.fwd,
             returns: Tensor::from_slice(&s.returns_host, (b, d), &self.dev)?,
@@ -376,7 +381,7 @@ impl Saver {
             env: s
                 .env
                 .as_ref()
-                .map(|t| EnvReturn::rows(t, batch, None, None, action_dim, &self.dev))
+                .map(|t| EnvReturn::rows(t, batch, None, clip, action_dim, &self.dev))
                 .transpose()?,
         };
         let step = self.step_loss(&rows)?;

@@ -74,11 +74,11 @@ pub struct SaverConfig {
     /// over the batch. 0: off (the paper, and every preset).
     #[serde(default)]
     pub env_reward: f64,
-    /// ε of a clipped env-return term over [`Self::epochs`]' passes (docs/ALGORITHM.md
-    /// §7.2): the term's policy gradient becomes PPO's surrogate
-    /// −mean min(ρ·Â_r, clip(ρ, 1 − ε, 1 + ε)·Â_r), ρ = π(a|o)/μ(a|o) to the policy that
-    /// acted, so a row stops pushing once its ratio has moved ε the way its advantage
-    /// wants. 0: off (the plain −mean Â_r·log π on every pass).
+    /// ε of a clipped env-return term (docs/ALGORITHM.md §7.1): the term's policy
+    /// gradient becomes PPO's surrogate −mean min(ρ·Â_r, clip(ρ, 1 − ε, 1 + ε)·Â_r),
+    /// ρ = π(a|o)/μ(a|o) to the policy that acted, so a row stops pushing once its ratio
+    /// has moved ε the way its advantage wants: over [`Self::epochs`]' passes and
+    /// minibatches, and on a lagged (async) batch. 0: off (−mean Â_r·log π).
     #[serde(default)]
     pub env_clip: f64,
     /// How the agent and the critics see the observations: raw (the paper), by their

@@ -540,6 +540,25 @@ mod tests {
         assert_eq!(v(&clipped.plain.1), v(&plain.push.1));
     }
 
+    /// The clip reaches the one-step update too (a lagged batch's behaviour is not the
+    /// current policy): on a batch whose payload policy is far from the fresh agent's,
+    /// ε = 0.05 moves the agent elsewhere than no clip, the vector critic not at all.
+    #[test]
+    fn the_one_step_update_clips_to_the_policy_that_acted() {
+        let b = batch(&saver(0.5).1, |_, i| -0.1 * i as f32);
+        let run = |eps: f64| {
+            let mut config = config(0.5);
+            config.saver.env_clip = eps;
+            let l = config.env.layout();
+            let mut s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+            s.update(&b).unwrap();
+            (weights(&s, "agent"), weights(&s, "critic."))
+        };
+        let (plain, clipped) = (run(0.0), run(0.05));
+        assert_ne!(plain.0, clipped.0);
+        assert_eq!(plain.1, clipped.1);
+    }
+
     /// Past success (`continue_past_success`) a step that starts inside the success box
     /// (radius 0.3 around the origin; the rows' p are uniform in [-1, 1]²) has no
     /// vector advantage, and every other row keeps the advantage it has without the

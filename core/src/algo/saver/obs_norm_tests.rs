@@ -34,37 +34,35 @@ fn agent_bits(s: &Saver) -> Vec<u32> {
     bits
 }
 
-/// The running statistics start from the declared range (mean its midpoint, variance
-/// its half-width squared, counted as `PRIOR_COUNT` observations), so the first update
-/// reads what the fixed `bounds` scale reads and takes its step, bit for bit. The batch
-/// (entry 0 shifted by 3, entry 1 spread ×5) then joins them by Chan's formula, which
-/// the weights carry; the second update reads them and so differs from `bounds`'; a
-/// checkpoint gives a fresh learner the same statistics and one without them is refused.
+/// Fresh weights carry mean 0 and std √(1 + 1e-8) = 1 in f32, so the first update reads
+/// the raw observations (all within ±10 here) and takes the step of a run without the
+/// option, bit for bit. The weights then carry the batch's moments (entry 0 is shifted
+/// by 3 and entry 1 spread ×5 so that they matter), the second update reads the
+/// observations normalised by them and so differs from the run without, and a
+/// checkpoint gives a fresh learner the same statistics.
 #[test]
 fn the_statistics_the_actors_acted_with_are_the_ones_the_update_reads() {
     let (mut on, mut batch) = saver(ObsNorm::Running);
-    let (mut fixed, _) = saver(ObsNorm::Bounds);
-    let (off, _) = saver(ObsNorm::Off);
+    let (mut off, _) = saver(ObsNorm::Off);
     let o = on.layout.obs_dim;
     for row in batch.obs.chunks_exact_mut(o) {
         row[0] += 3.0;
         row[1] *= 5.0;
     }
-    let carried = |s: &Saver| {
-        let t = s.policy_tensors().unwrap();
-        (find(&t, OBS_MEAN).unwrap(), find(&t, OBS_STD).unwrap())
-    };
-    assert_eq!(carried(&on), carried(&fixed));
+    assert!(batch.obs.iter().all(|v| v.abs() < 10.0));
+    let start = on.policy_tensors().unwrap();
+    assert_eq!(find(&start, OBS_MEAN), Some(vec![0.0; o]));
+    assert_eq!(find(&start, OBS_STD), Some(vec![1.0; o]));
     assert_eq!(find(&off.policy_tensors().unwrap(), OBS_MEAN), None);
     on.update(&batch).unwrap();
-    fixed.update(&batch).unwrap();
-    assert_eq!(agent_bits(&on), agent_bits(&fixed));
-    let (mean, std) = carried(&on);
-    let bounds = EnvSpec::new(EnvKind::Angle, 2).unwrap().bounds();
-    let n0 = super::obs_scale::PRIOR_COUNT;
+    off.update(&batch).unwrap();
+    assert_eq!(agent_bits(&on), agent_bits(&off));
+    let after = on.policy_tensors().unwrap();
+    let (mean, std) = (
+        find(&after, OBS_MEAN).unwrap(),
+        find(&after, OBS_STD).unwrap(),
+    );
     for j in 0..o {
-        let (lo, hi) = (bounds.obs_low[j] as f64, bounds.obs_high[j] as f64);
-        let (mid, half) = ((lo + hi) / 2.0, (hi - lo) / 2.0);
         let col: Vec<f64> = batch
             .obs
             .iter()
@@ -72,33 +70,33 @@ fn the_statistics_the_actors_acted_with_are_the_ones_the_update_reads() {
             .step_by(o)
             .map(|&v| v as f64)
             .collect();
-        let n = col.len() as f64;
-        let m = col.iter().sum::<f64>() / n;
-        let v = col.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n;
-        let total = n0 + n;
-        let want_mean = (n0 * mid + n * m) / total;
-        let want_var = (n0 * half * half + n * v + (m - mid).powi(2) * n0 * n / total) / total;
+        let m = col.iter().sum::<f64>() / col.len() as f64;
+        let s = (col.iter().map(|x| (x - m).powi(2)).sum::<f64>() / col.len() as f64).sqrt();
+        // The starting count (1e-4 at mean 0, variance 1) pulls each by ~1e-4 / 24.
         assert!(
-            (mean[j] as f64 - want_mean).abs() < 1e-6,
-            "{mean:?} vs {want_mean}"
+            (mean[j] as f64 - m).abs() < 1e-3 * m.abs().max(1.0),
+            "{mean:?} vs {m}"
         );
-        let want_std = (want_var + 1e-8).sqrt();
         assert!(
-            (std[j] as f64 - want_std).abs() < 1e-6,
-            "{std:?} vs {want_std}"
+            (std[j] as f64 - s).abs() < 1e-3 * s.max(0.1),
+            "{std:?} vs {s}"
         );
     }
-    // Entry 0's mean moved by 24·3/10,024 ≈ 0.007 from its midpoint.
-    assert!(mean[0] > 0.005, "{mean:?}");
+    assert!((mean[0] - 3.0).abs() < 1.0, "{mean:?}");
     on.update(&batch).unwrap();
-    fixed.update(&batch).unwrap();
-    assert_ne!(agent_bits(&on), agent_bits(&fixed));
+    off.update(&batch).unwrap();
+    assert_ne!(agent_bits(&on), agent_bits(&off));
     let saved = on.save_state().unwrap();
     let (mut fresh, _) = saver(ObsNorm::Running);
     fresh
         .restore_state(&|name: &str| saved.get(name), &saved.numbers)
         .unwrap();
-    assert_eq!(carried(&fresh), carried(&on));
+    let weights = |s: &Saver| {
+        let t = s.policy_tensors().unwrap();
+        (find(&t, OBS_MEAN), find(&t, OBS_STD))
+    };
+    assert_eq!(weights(&fresh), weights(&on));
+    // A checkpoint without them (a run without the option) is refused by name.
     let plain = off.save_state().unwrap();
     let (mut strict, _) = saver(ObsNorm::Running);
     let err = strict

@@ -13,9 +13,6 @@ use saver_proto::NamedTensor;
 
 /// The checkpoint prefix of the running statistics.
 const STATE: &str = "saver.obs_norm";
-/// How many observations the declared range counts for in the running statistics
-/// (their start: mean the range's midpoint, variance its half-width squared).
-pub const PRIOR_COUNT: f64 = 10_000.0;
 
 pub(super) enum ObsScale {
     /// The running mean and variance of the observations seen so far: an update reads
@@ -31,21 +28,17 @@ impl ObsScale {
     pub(super) fn of(kind: ObsNorm, bounds: &EnvBounds) -> Option<Self> {
         match kind {
             ObsNorm::Off => None,
-            ObsNorm::Running => {
-                let (mean, half) = range(bounds);
-                Some(Self::Running(RunningStats {
-                    count: PRIOR_COUNT,
-                    mean,
-                    var: half.iter().map(|h| h * h).collect(),
-                }))
-            }
+            ObsNorm::Running => Some(Self::Running(RunningStats::new(bounds.obs_low.len()))),
             ObsNorm::Bounds => {
-                let (mean, half) = range(bounds);
-                let f32s = |v: Vec<f64>| v.into_iter().map(|x| x as f32).collect();
-                Some(Self::Bounds {
-                    mean: f32s(mean),
-                    std: f32s(half),
-                })
+                let pairs = bounds.obs_low.iter().zip(&bounds.obs_high);
+                let (mean, std) = pairs
+                    .map(|(&lo, &hi)| {
+                        let half = (hi as f64 - lo as f64) / 2.0;
+                        let mid = (lo as f64 + hi as f64) / 2.0;
+                        (mid as f32, if half > 0.0 { half as f32 } else { 1.0 })
+                    })
+                    .unzip();
+                Some(Self::Bounds { mean, std })
             }
         }
     }
@@ -91,20 +84,4 @@ impl ObsScale {
         }
         Ok(())
     }
-}
-
-/// Each entry's declared midpoint and half-width (1 where the range is empty).
-fn range(bounds: &EnvBounds) -> (Vec<f64>, Vec<f64>) {
-    bounds
-        .obs_low
-        .iter()
-        .zip(&bounds.obs_high)
-        .map(|(&lo, &hi)| {
-            let half = (hi as f64 - lo as f64) / 2.0;
-            (
-                (lo as f64 + hi as f64) / 2.0,
-                if half > 0.0 { half } else { 1.0 },
-            )
-        })
-        .unzip()
 }
