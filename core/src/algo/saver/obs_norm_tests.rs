@@ -39,7 +39,7 @@ fn agent_bits(s: &Saver) -> Vec<u32> {
 /// option, bit for bit. The weights then carry the batch's moments (entry 0 is shifted
 /// by 3 and entry 1 spread ×5 so that they matter), the second update reads the
 /// observations normalised by them and so differs from the run without, and a
-/// checkpoint gives a fresh learner the same statistics.
+/// checkpoint gives a fresh learner the same statistics (one without them is refused).
 #[test]
 fn the_statistics_the_actors_acted_with_are_the_ones_the_update_reads() {
     let (mut on, mut batch) = saver(ObsNorm::Running);
