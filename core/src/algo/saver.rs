@@ -26,7 +26,7 @@ use crate::rng::{rng_for, streams, uniform01, SaverRng};
 use crate::rollout::Batch;
 use crate::{checkpoint, Result};
 use candle_core::{Device, Tensor};
-use env_return::{EnvReturn, EnvTargets};
+use env_return::{EnvReturn, EnvRows, EnvTargets};
 use grad::{host, PcpnGrad};
 use obs_scale::ObsScale;
 use pcpn_tune::PcpnTuner;
@@ -360,29 +360,18 @@ impl Saver {
             _ => Ok(None),
         }
     }
-}
 
-impl Saver {
     /// The paper's update: one optimiser step on the whole batch.
     fn update_one_step(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let s = self.start(batch)?;
         let (b, d) = (batch.len(), self.layout.aligned_dim);
-        let action_dim = self.layout.action_dim();
-        // PPO's clip on the env term: to the policy that acted (a lagged batch's, async).
-        let behaviour = (self.cfg.env_clip > 0.0 && s.env.is_some())
-            .then(|| super::behaviour_log_probs(&self.layout, batch, &self.dev))
-            .transpose()?;
-        let clip = behaviour.as_deref().map(|l| (l, self.cfg.env_clip));
+        let behaviour = self.behaviour(batch, &s, false)?;
         let rows = StepRows {
             fwd: &s.fwd,
             returns: Tensor::from_slice(&s.returns_host, (b, d), &self.dev)?,
             target: &s.target,
             adv: &s.adv_host,
-            env: s
-                .env
-                .as_ref()
-                .map(|t| EnvReturn::rows(t, batch, None, clip, action_dim, &self.dev))
-                .transpose()?,
+            env: self.env_rows(&s, batch, None, behaviour.as_deref())?,
         };
         let step = self.step_loss(&rows)?;
         // The PCPN's step on this batch, computed before anything changes.
@@ -390,6 +379,31 @@ impl Saver {
         let (losses, dmu) = self.take_step(step)?;
         let tune_loss = self.apply_tune(tune)?;
         self.finish(batch, s, dmu, losses, tune_loss)
+    }
+
+    /// The batch's log μ(a|o) under the policy that acted, where this update needs it:
+    /// for the KL stop of the passes (`kl_stop` and `saver.target_kl`), or for the env
+    /// term's clip where that term learns from the batch.
+    fn behaviour(&self, batch: &Batch, s: &Start, kl_stop: bool) -> Result<Option<Vec<f32>>> {
+        let clip = s.env.is_some() && self.env.as_ref().is_some_and(EnvReturn::clips);
+        (clip || kl_stop && self.cfg.target_kl > 0.0)
+            .then(|| super::behaviour_log_probs(&self.layout, batch, &self.dev))
+            .transpose()
+    }
+
+    /// The env term's rows `idx` (all with `None`) of the batch, where it learns from it.
+    fn env_rows(
+        &self,
+        s: &Start,
+        batch: &Batch,
+        idx: Option<&[usize]>,
+        behaviour: Option<&[f32]>,
+    ) -> Result<Option<EnvRows>> {
+        let a = self.layout.action_dim();
+        match (&self.env, &s.env) {
+            (Some(term), Some(t)) => Ok(Some(term.rows(t, batch, idx, behaviour, a, &self.dev)?)),
+            _ => Ok(None),
+        }
     }
 }
 

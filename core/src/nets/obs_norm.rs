@@ -82,6 +82,34 @@ impl RunningStats {
     pub fn weights(&self) -> Vec<NamedTensor> {
         weights(self.mean_f32(), self.std())
     }
+
+    /// The checkpoint tensors `{prefix}.count`, `.mean`, `.var` (f64, so a resumed run
+    /// goes on bit for bit).
+    pub fn state(&self, prefix: &str) -> Result<Vec<(String, Tensor)>> {
+        let f64s = |v: &[f64]| Tensor::from_slice(v, v.len(), &Device::Cpu);
+        Ok(vec![
+            (format!("{prefix}.count"), f64s(&[self.count])?),
+            (format!("{prefix}.mean"), f64s(&self.mean)?),
+            (format!("{prefix}.var"), f64s(&self.var)?),
+        ])
+    }
+
+    /// The statistics of `n` entries that [`Self::state`] saved under `prefix`.
+    pub fn restore(get: &dyn Fn(&str) -> Option<Tensor>, prefix: &str, n: usize) -> Result<Self> {
+        let read = |name: &str| read_f64s(get, &format!("{prefix}.{name}"));
+        let (count, mean, var) = (read("count")?, read("mean")?, read("var")?);
+        if count.len() != 1 || mean.len() != n || var.len() != n {
+            return Err(CoreError::Checkpoint(format!(
+                "{prefix}: saved for {} entries, this run has {n}",
+                mean.len()
+            )));
+        }
+        Ok(Self {
+            count: count[0],
+            mean,
+            var,
+        })
+    }
 }
 
 /// The weights' [`OBS_MEAN`] and [`OBS_STD`] of a mean and scale.
@@ -110,36 +138,6 @@ pub fn normalize_tensor(obs: &Tensor, mean: &[f32], std: &[f32]) -> Result<Tenso
         .broadcast_sub(&mean)?
         .broadcast_div(&std)?
         .clamp(-OBS_CLIP, OBS_CLIP)?)
-}
-
-impl RunningStats {
-    /// The checkpoint tensors `{prefix}.count`, `.mean`, `.var` (f64, so a resumed run
-    /// goes on bit for bit).
-    pub fn state(&self, prefix: &str) -> Result<Vec<(String, Tensor)>> {
-        let f64s = |v: &[f64]| Tensor::from_slice(v, v.len(), &Device::Cpu);
-        Ok(vec![
-            (format!("{prefix}.count"), f64s(&[self.count])?),
-            (format!("{prefix}.mean"), f64s(&self.mean)?),
-            (format!("{prefix}.var"), f64s(&self.var)?),
-        ])
-    }
-
-    /// The statistics of `n` entries that [`Self::state`] saved under `prefix`.
-    pub fn restore(get: &dyn Fn(&str) -> Option<Tensor>, prefix: &str, n: usize) -> Result<Self> {
-        let read = |name: &str| read_f64s(get, &format!("{prefix}.{name}"));
-        let (count, mean, var) = (read("count")?, read("mean")?, read("var")?);
-        if count.len() != 1 || mean.len() != n || var.len() != n {
-            return Err(CoreError::Checkpoint(format!(
-                "{prefix}: saved for {} entries, this run has {n}",
-                mean.len()
-            )));
-        }
-        Ok(Self {
-            count: count[0],
-            mean,
-            var,
-        })
-    }
 }
 
 /// The saved tensor `name` as f64s; a clear error where the state has none.

@@ -40,6 +40,8 @@ pub(super) struct EnvReturn {
     critic: Critic,
     /// w.
     weight: f64,
+    /// ε of PPO's clip on the term (`saver.env_clip`; 0: none).
+    clip: f64,
     /// The running mean square of the env reward per step (0 before the first batch;
     /// a cell so that a batch's targets are made where the update's other targets are).
     mean_square: Cell<f32>,
@@ -98,6 +100,7 @@ impl EnvReturn {
         Ok(Some(Self {
             critic,
             weight: config.saver.env_reward,
+            clip: config.saver.env_clip,
             mean_square: Cell::new(0.0),
         }))
     }
@@ -239,14 +242,19 @@ impl EnvReturn {
         })
     }
 
-    /// The rows `idx` (all with `None`) of a batch's targets as one step's [`EnvRows`].
-    /// With `clip` (the batch's log μ(a|o) per step, ε) the rows carry theirs for PPO's
-    /// clipped surrogate.
+    /// Whether the term clips, and so needs the log μ(a|o) of the policy that acted.
+    pub(super) fn clips(&self) -> bool {
+        self.clip > 0.0
+    }
+
+    /// The rows `idx` (all with `None`) of a batch's targets as one step's [`EnvRows`];
+    /// where the term clips, with theirs of `behaviour` (the batch's log μ(a|o) per step).
     pub(super) fn rows(
+        &self,
         t: &EnvTargets,
         batch: &Batch,
         idx: Option<&[usize]>,
-        clip: Option<(&[f32], f64)>,
+        behaviour: Option<&[f32]>,
         action_dim: usize,
         dev: &Device,
     ) -> Result<EnvRows> {
@@ -258,7 +266,9 @@ impl EnvReturn {
             returns: matrix(&pick(&t.returns, 1), n, 1, dev)?,
             adv: Tensor::from_vec(pick(&t.advantages, 1), n, dev)?,
             actions: matrix(&pick(&batch.actions, action_dim), n, action_dim, dev)?,
-            clip: clip.map(|(logp_b, eps)| (pick(logp_b, 1), eps)),
+            clip: behaviour
+                .filter(|_| self.clips())
+                .map(|logp_b| (pick(logp_b, 1), self.clip)),
         })
     }
 

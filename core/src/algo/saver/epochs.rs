@@ -7,7 +7,7 @@
 //! `saver.target_kl` the passes stop early once a minibatch's policy has moved that far
 //! from the one that acted (approximate KL), as PPO's early stop.
 
-use super::{EnvReturn, Losses, Saver, StepRows};
+use super::{Losses, Saver, StepRows};
 use crate::algo::{gather_rows, Algorithm, UpdateStats};
 use crate::rollout::Batch;
 use crate::Result;
@@ -42,15 +42,7 @@ impl Saver {
         let mut dmu = Some(vec![0f32; b * mu_dim]);
         let mut losses = Vec::with_capacity(self.cfg.epochs * m);
         let mut order: Vec<usize> = (0..b).collect();
-        let behaviour = if self.cfg.target_kl > 0.0 || self.cfg.env_clip > 0.0 {
-            Some(crate::algo::behaviour_log_probs(
-                &self.layout,
-                batch,
-                &self.dev,
-            )?)
-        } else {
-            None
-        };
+        let behaviour = self.behaviour(batch, &s, true)?;
         'passes: for epoch in 0..self.cfg.epochs {
             // One minibatch is the whole batch: its order changes nothing but the bits.
             if m > 1 {
@@ -81,17 +73,7 @@ impl Saver {
                     returns: Tensor::from_vec(rows(&s.returns_host, d), (n, d), &self.dev)?,
                     target: &target,
                     adv: &adv,
-                    env: s
-                        .env
-                        .as_ref()
-                        .map(|t| {
-                            let clip = behaviour
-                                .as_deref()
-                                .filter(|_| self.cfg.env_clip > 0.0)
-                                .map(|logp_b| (logp_b, self.cfg.env_clip));
-                            EnvReturn::rows(t, batch, Some(idx), clip, a, &self.dev)
-                        })
-                        .transpose()?,
+                    env: self.env_rows(&s, batch, Some(idx), behaviour.as_deref())?,
                 };
                 let step = self.step_loss(&step_rows)?;
                 let (l, step_dmu) = self.take_step(step)?;

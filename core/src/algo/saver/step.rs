@@ -103,9 +103,8 @@ impl Saver {
                 let e = EnvReturn::policy_grads(&self.layout, &f.mu, &f.log_std, env_rows)?;
                 let c = term.scale([g_mu, g_ls], [&e.plain.0, &e.plain.1])? as f64;
                 let push = surrogate(&f.mu, &f.log_std, &(e.push.0 * c)?, &(e.push.1 * c)?)?;
-                let pg = e.loss;
                 let v_r = term.critic_loss(&f.xc, env_rows, self.cfg.lambda_critic)?;
-                env_pg = check_finite("env_pg_loss", pg)?;
+                env_pg = check_finite("env_pg_loss", e.loss)?;
                 env_scale = check_finite("env_pg_scale", c as f32)?;
                 env_critic = check_finite("env_critic_loss", v_r.to_scalar::<f32>()?)?;
                 ((a.loss + push)? + v_r)?
