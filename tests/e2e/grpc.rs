@@ -370,28 +370,29 @@ fn async_mode_drops_rollouts_older_than_max_lag() {
 }
 
 /// Async with V-trace and a deliberately slow actor: two actors train A2C; a third
-/// acts on version 0 and hands its rollout in at version 5 or later (max_lag 150, so
+/// acts on version 0 and hands its rollout in at version 20 or later (max_lag 150, so
 /// that a busy machine that runs the trainer ahead before the push does not drop it
-/// as stale). The
-/// update that takes it reports a lag of 5 and ratios π/μ away from 1; every update of
-/// current rollouts alone reports ratios of 1 (the actors' payload is the learner's
-/// own policy at that version, to rounding).
+/// as stale). The update that takes it reports a lag of at least 20 and ratios π/μ
+/// away from 1; every update of current rollouts alone reports ratios of 1 (the
+/// actors' payload is the learner's own policy at that version, to rounding). At a lag
+/// of 5 the slow batch's largest ratio was 1.011 against the 0.01 this asserts, and a
+/// loaded machine once took it under; 20 updates move the policy ~4x as far.
 #[test]
 fn vtrace_weighs_a_slow_actors_rollout_by_its_ratios() {
     let mut config = async_a2c(200, 150);
     config.vtrace = true;
-    // A rate at which 5 updates move the policy visibly.
+    // A rate at which 20 updates move the policy visibly.
     config.lr = 3e-3;
     saver_core::algo::validate(&config).unwrap();
     let dir = temp_dir("async-vtrace");
-    let o = run_with_a_late_rollout(&config, &dir, 5);
+    let o = run_with_a_late_rollout(&config, &dir, 20);
     let lags: Vec<u64> = metrics_column(&o, "lag_max");
     let means: Vec<f32> = metrics_column(&o, "vtrace_ratio_mean");
     let maxes: Vec<f32> = metrics_column(&o, "vtrace_ratio_max");
     let clipped: Vec<f32> = metrics_column(&o, "vtrace_clipped");
     let mut slow_rows = 0;
     for (((l, m), x), c) in lags.iter().zip(&means).zip(&maxes).zip(&clipped) {
-        if *l >= 5 {
+        if *l >= 20 {
             slow_rows += 1;
             assert!(
                 (x - 1.0).abs() > 0.01 || (m - 1.0).abs() > 0.01,
