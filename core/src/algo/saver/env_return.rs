@@ -558,7 +558,9 @@ mod tests {
         let b = batch(&saver(0.5).1, |_, i| -0.1 * i as f32);
         let run = |eps: f64| {
             let mut config = config(0.5);
-            config.saver.env_clip = eps;
+            // One optimiser step per batch (the custom-env default makes two passes).
+            (config.saver.env_clip, config.saver.epochs) = (eps, 1);
+            config.saver.minibatch_size = 0;
             let l = config.env.layout();
             let mut s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
             s.update(&b).unwrap();
