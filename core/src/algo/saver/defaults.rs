@@ -238,11 +238,11 @@ mod tests {
     }
 
     /// The saturation wall, the tuned PCPN, γ = 0.97, 64-step rollouts, the progress
-    /// completed at success, the decaying rate, the σ floor, minibatches over two passes
-    /// with the clipped env term are SAVER's
-    /// defaults on custom envs only: every preset (and so results/fig3-5) keeps the
-    /// paper's 0, 0.99, 8, plain progress, constant rate and one step per batch, as does
-    /// `--faithful`, and A2C never has them; a preset refuses the completion.
+    /// completed at success, the decaying rate, the σ floor, and minibatches over two
+    /// passes with the clipped env term are SAVER's defaults on custom envs only: every
+    /// preset (and so results/fig3-5) keeps the paper's 0, 0.99, 8, plain progress,
+    /// constant rate and one step per batch, as does `--faithful`, and A2C never has
+    /// them; a preset refuses the completion.
     #[test]
     fn saver_on_a_custom_env_takes_its_own_defaults_and_no_preset_or_a2c_does() {
         let custom = EnvSpec::unit_custom("pointmass", 0.2).unwrap();
