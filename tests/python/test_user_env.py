@@ -20,6 +20,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import test_saver_actor as t
@@ -45,21 +46,37 @@ def user_env():
 
 def sh(script, cwd, timeout):
     """Runs a guide block with bash -e in its own process group (killed whole on a
-    timeout); returns (exit status, output), the output also in guide-N.log."""
+    timeout); returns (exit status, output), the output also in guide-N.log. A block
+    that succeeds is read to the end of its output (its background processes included);
+    one that fails ends when bash does, its background processes killed (actors that
+    wait up to 600 s for a learner that never started would hold the output open)."""
     p = subprocess.Popen(["bash", "-e", "-c", script], cwd=cwd, env=user_env(), stdout=subprocess.PIPE,
                          stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    try:
-        out, _ = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        out, _ = p.communicate()
-        raise AssertionError(f"the block did not end in {timeout} s:\n{script}\n{out[-4000:]}") from None
-    finally:
-        # What a failed block left running in the background (bash -e ends at the error).
+    def kill_group():
         try:
             os.killpg(p.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+    chunks = []
+    reader = threading.Thread(target=lambda: chunks.extend(p.stdout), daemon=True)
+    reader.start()
+    start = time.monotonic()
+    try:
+        p.wait(timeout=timeout)
+        if p.returncode != 0:
+            kill_group()
+        reader.join(max(timeout - (time.monotonic() - start), 1.0))
+        if reader.is_alive():
+            raise subprocess.TimeoutExpired(script, timeout)
+    except subprocess.TimeoutExpired:
+        kill_group()
+        reader.join()
+        out = "".join(chunks)
+        raise AssertionError(f"the block did not end in {timeout} s:\n{script}\n{out[-4000:]}") from None
+    finally:
+        kill_group()  # what a block left running in the background
+    out = "".join(chunks)
     log = os.path.join(cwd, f"guide-{len(glob.glob(os.path.join(cwd, 'guide-*.log')))}.log")
     with open(log, "w") as f:
         f.write(out)
