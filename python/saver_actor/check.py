@@ -17,7 +17,9 @@ from .env import EnvDecl, EnvError
 @dataclass
 class CheckReport:
     """What a check saw: the steps and episodes it ran, the largest one-step change
-    of each aligned entry, the range of each observation entry, and warnings (things
+    of each aligned entry, the range and spread (standard deviation) of each
+    observation entry (under random actions: where entries differ much in scale,
+    docs/GUIDE.md says when `--saver-obs-norm running` helps), and warnings (things
     that will not stop a run but probably are not what was meant)."""
 
     steps: int = 0
@@ -26,6 +28,7 @@ class CheckReport:
     largest_change: Any = None  # [d]
     obs_min: Any = None  # [obs_dim]
     obs_max: Any = None
+    obs_std: Any = None  # [obs_dim], over every observation seen (resets included)
     warnings: List[str] = field(default_factory=list)
 
     def text(self, decl: EnvDecl) -> str:
@@ -33,6 +36,8 @@ class CheckReport:
                  f"({self.successes} successes); every check passed"]
         change = ", ".join(f"{v:.3g}" for v in self.largest_change)
         lines.append(f"  largest one-step change of p: [{change}] (declared max_change {decl.max_change:g})")
+        spread = ", ".join(f"{v:.3g}" for v in self.obs_std)
+        lines.append(f"  spread (std) of each observation entry: [{spread}]")
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -70,10 +75,12 @@ def check_env(make_env: Callable, decl: EnvDecl, steps: int = 500, seed: int = 0
     r = CheckReport(largest_change=np.zeros(decl.dim), obs_min=np.full(decl.obs_dim, np.inf),
                     obs_max=np.full(decl.obs_dim, -np.inf))
     c, ch = decl.continuous, decl.choices
+    seen = []  # every observation, for the entries' spreads
     try:
         o, _ = env.reset(seed=seed)
         obs = np.asarray(o, dtype=np.float64).reshape(-1)
         decl.check_obs(obs, "reset")
+        seen.append(obs)
         for _ in range(steps):
             action = np.zeros(c + ch, dtype=np.float32)
             action[:c] = rng.uniform(-1.0, 1.0, c)
@@ -88,6 +95,7 @@ def check_env(make_env: Callable, decl: EnvDecl, steps: int = 500, seed: int = 0
             r.steps += 1
             r.largest_change = np.maximum(r.largest_change, np.abs(delta[0]))
             r.obs_min, r.obs_max = np.minimum(r.obs_min, nxt), np.maximum(r.obs_max, nxt)
+            seen.append(nxt)
             if terminated and not success[0]:
                 raise EnvError(f"{decl.name}: {where}: the env ended the episode (terminated) without success; a "
                                f"SAVER episode ends at the goal or at the step limit: declare success_radius so that "
@@ -98,10 +106,12 @@ def check_env(make_env: Callable, decl: EnvDecl, steps: int = 500, seed: int = 0
                 o, _ = env.reset()
                 obs = np.asarray(o, dtype=np.float64).reshape(-1)
                 decl.check_obs(obs, "reset")
+                seen.append(obs)
             else:
                 obs = nxt
     finally:
         env.close()
+    r.obs_std = np.std(np.array(seen), axis=0)
     _loose(decl, r)
     return r
 

@@ -607,6 +607,19 @@ def test_check_finds_what_a_run_would_refuse():
                              capture_output=True, text=True, timeout=120)
         assert out.returncode == rc and want in out.stdout + out.stderr, (name, out.returncode, out.stdout,
                                                                          out.stderr)
+        if name == "good":
+            # p starts uniform in [-1, 1] each episode: its spread is under the half-range 1.
+            line = next(x for x in out.stdout.splitlines() if "spread (std) of each observation entry" in x)
+            spread = float(line.split("[")[1].rstrip("]"))
+            assert 0.2 < spread <= 1.0, line
+    # The point mass from rest under random pushes: its speeds spread less than its
+    # position and goal, which start uniform in [-0.9, 0.9].
+    from saver_actor import check_env
+    make_env, decl = custom_env("saver_actor.examples:pointmass")
+    r = check_env(make_env, decl, steps=500)
+    std = r.obs_std
+    assert std.shape == (6,) and (std > 0).all() and (std <= 1.0).all(), std
+    assert max(std[2:4]) < min(std[[0, 1, 4, 5]]), std
     print("  check: the declared line passes; too tight a max_change and an early end are named")
 
 
