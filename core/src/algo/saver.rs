@@ -273,7 +273,7 @@ impl Saver {
         let v_all = &all.value; // [B+T, d]
         let env = match &self.env {
             Some(e) if EnvReturn::applies(batch) => {
-                let lambda = self.cfg.gae_lambda as f32;
+                let lambda = self.cfg.env_gae_lambda as f32;
                 Some(e.targets(batch, &e.value(&all.xc)?, n_ends, self.gamma, lambda)?)
             }
             _ => None,

@@ -584,6 +584,7 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         epochs: 1,
         minibatch_size: 0,
         gae_lambda: 1.0,
+        env_gae_lambda: 1.0,
         target_kl: 0.0,
         env_reward: 0.0,
         env_clip: 0.0,

@@ -204,6 +204,7 @@ impl RunConfig {
                 epochs: 1,
                 minibatch_size: 0,
                 gae_lambda: 1.0,
+                env_gae_lambda: 1.0,
                 target_kl: 0.0,
                 env_reward: 0.0,
                 env_clip: 0.0,
@@ -505,8 +506,16 @@ mod tests {
                 e.contains("saver.gae_lambda") && e.contains("not in [0, 1]"),
                 "{e}"
             );
+            c.saver.gae_lambda = 1.0;
+            c.saver.env_gae_lambda = bad;
+            let e = crate::algo::validate(&c).unwrap_err().to_string();
+            assert!(
+                e.contains("saver.env_gae_lambda") && e.contains("not in [0, 1]"),
+                "{e}"
+            );
+            c.saver.env_gae_lambda = 1.0;
         }
-        c.saver.gae_lambda = 0.0;
+        (c.saver.gae_lambda, c.saver.env_gae_lambda) = (0.0, 0.0);
         crate::algo::validate(&c).unwrap();
         for bad in [-0.1, f64::NAN, f64::INFINITY] {
             c.saver.target_kl = bad;

@@ -62,6 +62,12 @@ pub struct SaverConfig {
     /// rollout (the paper).
     #[serde(default = "no_trace_decay")]
     pub gae_lambda: f64,
+    /// λ of the env-return term's GAE(λ) on its scalar critic (docs/ALGORITHM.md §7.2),
+    /// apart from [`Self::gae_lambda`]: on Reacher-v5 λ = 0.95 on both terms cost
+    /// success and return at 200 k steps, on the vector term alone it did not cost
+    /// success (results/env-return/README.md, "night"). 1: the rollout's n-step returns.
+    #[serde(default = "no_trace_decay")]
+    pub env_gae_lambda: f64,
     /// A trust region for [`Self::epochs`]' passes: before each minibatch step after
     /// the first, the passes over the batch stop once the minibatch's approximate
     /// KL(behaviour ‖ current policy), mean((ρ − 1) − log ρ) over its steps' actions, is
@@ -140,11 +146,13 @@ impl SaverConfig {
                 return bad(field, format!("{v} must be finite and >= 0"));
             }
         }
-        if !(0.0..=1.0).contains(&s.gae_lambda) {
-            return bad(
-                "saver.gae_lambda",
-                format!("{} is not in [0, 1]", s.gae_lambda),
-            );
+        for (field, v) in [
+            ("saver.gae_lambda", s.gae_lambda),
+            ("saver.env_gae_lambda", s.env_gae_lambda),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return bad(field, format!("{v} is not in [0, 1]"));
+            }
         }
         if !(s.target_kl.is_finite() && s.target_kl >= 0.0) {
             return bad(

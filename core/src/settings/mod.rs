@@ -155,6 +155,9 @@ pub struct SaverSettings {
     #[arg(id = "saver_gae_lambda", value_name = "LAMBDA", long = "saver-gae-lambda", allow_hyphen_values = true, help = help("SAVER: λ of GAE(λ) on the vector critic, per coordinate (1: the rollout's n-step returns, the paper)", "saver.gae_lambda"))]
     #[serde(rename = "gae_lambda")]
     pub saver_gae_lambda: Option<f64>,
+    #[arg(id = "saver_env_gae_lambda", value_name = "LAMBDA", long = "saver-env-gae-lambda", allow_hyphen_values = true, help = help("SAVER: λ of GAE(λ) on the env-return term's scalar critic (1: the rollout's n-step returns)", "saver.env_gae_lambda"))]
+    #[serde(rename = "env_gae_lambda")]
+    pub saver_env_gae_lambda: Option<f64>,
     #[arg(id = "saver_target_kl", value_name = "KL", long = "saver-target-kl", help = help("SAVER: stop --saver-epochs' passes over a batch once a minibatch's approximate KL to the behaviour policy is above this (0: off)", "saver.target_kl"))]
     #[serde(rename = "target_kl")]
     pub saver_target_kl: Option<f64>,

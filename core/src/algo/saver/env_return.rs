@@ -433,6 +433,29 @@ mod tests {
         );
     }
 
+    /// The env term's λ is `saver.env_gae_lambda`, not the vector term's
+    /// `saver.gae_lambda`: with the vector λ at 0.5 the env term's targets are those of
+    /// λ = 1 to the bit while the vector advantages move, and its own λ at 0.5 moves
+    /// its returns.
+    #[test]
+    fn the_env_term_has_a_lambda_of_its_own() {
+        let b = batch(&saver(0.5).1, |_, i| -0.5 + 0.1 * i as f32);
+        let start = |vector: f64, env: f64| {
+            let mut config = config(0.5);
+            (config.saver.gae_lambda, config.saver.env_gae_lambda) = (vector, env);
+            let l = config.env.layout();
+            let s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+            let st = s.start(&b).unwrap();
+            let t = st.env.expect("the term runs");
+            (t.returns, t.advantages, st.adv_host)
+        };
+        let (plain, vector_only, env_only) = (start(1.0, 1.0), start(0.5, 1.0), start(1.0, 0.5));
+        assert_eq!((&plain.0, &plain.1), (&vector_only.0, &vector_only.1));
+        assert_ne!(plain.2, vector_only.2);
+        assert_ne!(plain.0, env_only.0);
+        assert_eq!(plain.2, env_only.2);
+    }
+
     /// The unit L_r = −mean_B Â·log π(a|o), log π of the diagonal Gaussian written out:
     /// Σ_i −(a_i − μ_i)² / (2σ_i²) − log σ_i − ½ log 2π, on 3 rows of 2 actions, with
     /// its gradient; and the scale c = w·|g_v|/|g_r| (|(3, 4)| = 5, |(0, 10)| = 10).
