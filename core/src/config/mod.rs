@@ -499,21 +499,22 @@ mod tests {
             .to_string()
             .contains("twice"));
         let mut c = ok.clone();
-        for bad in [1.5, -0.1, f64::NAN] {
-            c.saver.gae_lambda = bad;
+        for (field, bad) in [
+            ("gae_lambda", 1.5),
+            ("gae_lambda", -0.1),
+            ("gae_lambda", f64::NAN),
+            ("env_gae_lambda", 1.5),
+            ("env_gae_lambda", f64::NAN),
+        ] {
+            let mut c = ok.clone();
+            match field {
+                "gae_lambda" => c.saver.gae_lambda = bad,
+                _ => c.saver.env_gae_lambda = bad,
+            }
             let e = crate::algo::validate(&c).unwrap_err().to_string();
-            assert!(
-                e.contains("saver.gae_lambda") && e.contains("not in [0, 1]"),
-                "{e}"
-            );
-            c.saver.gae_lambda = 1.0;
-            c.saver.env_gae_lambda = bad;
-            let e = crate::algo::validate(&c).unwrap_err().to_string();
-            assert!(
-                e.contains("saver.env_gae_lambda") && e.contains("not in [0, 1]"),
-                "{e}"
-            );
-            c.saver.env_gae_lambda = 1.0;
+            // "saver.gae_lambda" is not a part of "saver.env_gae_lambda".
+            let named = format!("saver.{field}");
+            assert!(e.contains(&named) && e.contains("not in [0, 1]"), "{e}");
         }
         (c.saver.gae_lambda, c.saver.env_gae_lambda) = (0.0, 0.0);
         crate::algo::validate(&c).unwrap();
