@@ -365,7 +365,7 @@ impl Saver {
     fn update_one_step(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let s = self.start(batch)?;
         let (b, d) = (batch.len(), self.layout.aligned_dim);
-        let behaviour = self.behaviour(batch, &s, false)?;
+        let behaviour = self.behaviour(batch, &s)?;
         let rows = StepRows {
             fwd: &s.fwd,
             returns: Tensor::from_slice(&s.returns_host, (b, d), &self.dev)?,
@@ -382,11 +382,12 @@ impl Saver {
     }
 
     /// The batch's log μ(a|o) under the policy that acted, where this update needs it:
-    /// for the KL stop of the passes (`kl_stop` and `saver.target_kl`), or for the env
-    /// term's clip where that term learns from the batch.
-    fn behaviour(&self, batch: &Batch, s: &Start, kl_stop: bool) -> Result<Option<Vec<f32>>> {
+    /// for the KL stop of `saver.target_kl` where the update makes several steps, or for
+    /// the env term's clip where that term learns from the batch.
+    fn behaviour(&self, batch: &Batch, s: &Start) -> Result<Option<Vec<f32>>> {
         let clip = s.env.is_some() && self.env.as_ref().is_some_and(EnvReturn::clips);
-        (clip || kl_stop && self.cfg.target_kl > 0.0)
+        let kl_stop = self.cfg.target_kl > 0.0 && !self.cfg.one_step(batch.len());
+        (clip || kl_stop)
             .then(|| super::behaviour_log_probs(&self.layout, batch, &self.dev))
             .transpose()
     }

@@ -42,7 +42,7 @@ impl Saver {
         let mut dmu = Some(vec![0f32; b * mu_dim]);
         let mut losses = Vec::with_capacity(self.cfg.epochs * m);
         let mut order: Vec<usize> = (0..b).collect();
-        let behaviour = self.behaviour(batch, &s, true)?;
+        let behaviour = self.behaviour(batch, &s)?;
         'passes: for epoch in 0..self.cfg.epochs {
             // One minibatch is the whole batch: its order changes nothing but the bits.
             if m > 1 {
