@@ -620,6 +620,13 @@ def test_check_finds_what_a_run_would_refuse():
     std = r.obs_std
     assert std.shape == (6,) and (std > 0).all() and (std <= 1.0).all(), std
     assert max(std[2:4]) < min(std[[0, 1, 4, 5]]), std
+    # ... so no note on `aligned` (its p is the widest entry), while Reacher-v5's
+    # fingertip offset spreads ~0.15 against its joint cosines' ~0.75 (a fifth).
+    assert r.notes == [], r.notes
+    make_env, decl = custom_env("saver_actor.examples:reacher")
+    r = check_env(make_env, decl, steps=500)
+    assert len(r.notes) == 1 and "--saver-obs-norm aligned" in r.notes[0], r.notes
+    assert max(r.obs_std[8:10]) < max(r.obs_std[0:4]) / 3, r.obs_std
     print("  check: the declared line passes; too tight a max_change and an early end are named")
 
 

@@ -160,7 +160,7 @@ impl Saver {
                 .continue_past_success
                 .then(|| config.env.success_rule())
                 .flatten(),
-            obs_norm: ObsScale::of(config.saver.obs_norm, &config.env.bounds()),
+            obs_norm: ObsScale::of(config.saver.obs_norm, &config.env),
         })
     }
 

@@ -129,6 +129,12 @@ pub enum ObsNorm {
     /// Mapped from the env's declared bounds to [−1, 1]: (o − (low + high)/2) / ((high −
     /// low)/2), fixed for the whole run.
     Bounds,
+    /// The aligned entries (the position p, and the goal g where the env declares one)
+    /// by their running mean and variance, every other entry raw: for an env whose p
+    /// spreads far less than its other entries (Reacher-v5's fingertip offset), without
+    /// blowing up entries that spread little under random actions (an inertial point's
+    /// speed) as `running` does.
+    Aligned,
 }
 
 /// Where PCPN pretraining samples come from.

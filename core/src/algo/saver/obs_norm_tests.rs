@@ -129,3 +129,75 @@ fn the_bounds_scale_is_the_declared_range_for_the_whole_run() {
         .iter()
         .all(|(n, _)| !n.starts_with("saver.obs_norm")));
 }
+
+/// A custom env with the point mass's layout (p = entries 0-1, speeds 2-3), its goal
+/// at `goal_start` when declared.
+fn plane(goal_start: Option<usize>) -> EnvSpec {
+    use crate::env::{EnvBounds, EnvLayout, SuccessRule};
+    let layout = EnvLayout {
+        obs_dim: 6,
+        continuous: 2,
+        choices: 0,
+        aligned_start: 0,
+        aligned_dim: 2,
+    };
+    let bounds = EnvBounds {
+        obs_low: vec![-5.0; 6],
+        obs_high: vec![5.0; 6],
+        max_change: 0.2,
+    };
+    let rule = SuccessRule {
+        radius: 0.05,
+        goal_start,
+    };
+    EnvSpec::custom("plane", layout, bounds)
+        .unwrap()
+        .with_success(Some(rule))
+        .unwrap()
+}
+
+/// `aligned`: the position and the declared goal are scaled by their running moments,
+/// every other entry travels as mean 0, scale 1 (read raw), while all entries' moments
+/// are kept (the checkpoint holds the same statistics as `running`'s). Entries are
+/// shifted and spread apart per column so that a wrong index shows: column j of the
+/// batch is U(−1, 1)·(j + 1) + j, so its mean is ≈ j and its std ≈ (j + 1)/√3.
+#[test]
+fn aligned_scales_the_position_and_goal_alone() {
+    use crate::algo::saver::obs_scale::aligned_entries;
+    assert_eq!(aligned_entries(&plane(Some(4))), vec![0, 1, 4, 5]);
+    // No goal in the observation (Reacher-v5: p is already relative to the target).
+    assert_eq!(aligned_entries(&plane(None)), vec![0, 1]);
+    // A goal that overlaps p adds nothing twice.
+    assert_eq!(aligned_entries(&plane(Some(1))), vec![0, 1, 2]);
+    let spec = plane(Some(4));
+    let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+    config.saver.obs_norm = ObsNorm::Aligned;
+    let l = spec.layout();
+    let mut s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+    let mut batch = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
+    for row in batch.obs.chunks_exact_mut(6) {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = *v * (j + 1) as f32 + j as f32;
+        }
+    }
+    s.update(&batch).unwrap();
+    let t = s.policy_tensors().unwrap();
+    let (mean, std) = (find(&t, OBS_MEAN).unwrap(), find(&t, OBS_STD).unwrap());
+    for j in 0..6 {
+        if [2, 3].contains(&j) {
+            assert_eq!((mean[j], std[j]), (0.0, 1.0), "{j}");
+            continue;
+        }
+        // 512 draws: the sample mean is within 4 standard errors of j.
+        let (m, sd) = (j as f32, (j + 1) as f32 / 3f32.sqrt());
+        assert!(
+            (mean[j] - m).abs() < 4.0 * sd / 512f32.sqrt(),
+            "{j}: {mean:?}"
+        );
+        assert!((std[j] - sd).abs() < 0.1 * sd, "{j}: {std:?}");
+    }
+    let saved = s.save_state().unwrap();
+    let stored_mean = saved.get("saver.obs_norm.mean").unwrap();
+    let stored: Vec<f64> = stored_mean.to_vec1().unwrap();
+    assert!((stored[2] - 2.0).abs() < 0.3, "{stored:?}");
+}
