@@ -51,7 +51,8 @@ enum Command {
 }
 
 /// Log filter unless RUST_LOG says otherwise.
-const DEFAULT_LOG: &str = "warn,saver_learner=info,saver_pcpn_trainer=info,saver_run=info";
+const DEFAULT_LOG: &str =
+    "warn,saver_core=info,saver_learner=info,saver_pcpn_trainer=info,saver_run=info";
 
 /// `saver bench`'s log filter: its tables only, not the INFO lines of the services it
 /// starts in-process (actors joining and leaving); RUST_LOG overrides.

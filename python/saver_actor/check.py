@@ -121,7 +121,9 @@ def check_env(make_env: Callable, decl: EnvDecl, steps: int = 500, seed: int = 0
 
 
 # p spreads less than this share of the widest other entry: the note on
-# `--saver-obs-norm aligned` (results/env-return/README.md, "where the observation scale acts").
+# `--saver-obs-norm aligned` (the learner's `auto` uses the same share, NARROW_POSITION in
+# core/src/algo/saver/obs_scale.rs; results/env-return/README.md, "where the observation
+# scale acts").
 NARROW_POSITION = 1 / 3
 
 
@@ -141,8 +143,9 @@ def _narrow_position(decl: EnvDecl, r: CheckReport) -> None:
     ratio = float(np.max(r.obs_std[p])) / max(float(r.obs_std[widest]), 1e-12)
     if ratio < NARROW_POSITION:
         r.notes.append(f"p spreads {float(np.max(r.obs_std[p])):.3g} at most, {ratio:.2f} of entry {widest}'s "
-                       f"{float(r.obs_std[widest]):.3g}: `saver train --saver-obs-norm aligned` lets the agent read "
-                       f"p (and g) at unit spread (docs/GUIDE.md, 'Bring your own environment')")
+                       f"{float(r.obs_std[widest]):.3g}: SAVER's default (`--saver-obs-norm auto`) reads p (and g) "
+                       f"at unit spread where its first batch finds the same, `--saver-obs-norm aligned` always "
+                       f"(docs/GUIDE.md, 'Bring your own environment')")
 
 
 def _loose(decl: EnvDecl, r: CheckReport) -> None:

@@ -135,6 +135,11 @@ pub enum ObsNorm {
     /// blowing up entries that spread little under random actions (an inertial point's
     /// speed) as `running` does.
     Aligned,
+    /// As `aligned` where, over the first batch, p's widest entry spreads less than a
+    /// third of the widest entry outside p and g (the agent would read what it steers
+    /// at a fraction of its other inputs' scale); raw otherwise. Decided once, logged
+    /// and checkpointed. SAVER's default on a custom env.
+    Auto,
 }
 
 /// Where PCPN pretraining samples come from.

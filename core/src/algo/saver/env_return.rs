@@ -343,8 +343,13 @@ mod tests {
         b
     }
 
-    fn weights(s: &Saver, prefix: &str) -> Vec<(String, Vec<u32>)> {
-        let bits = |x: &Tensor| x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    /// The saved tensors named `prefix…`, bit for bit (f32 and the f64 statistics of
+    /// `saver.obs_norm`, both exact in f64).
+    fn weights(s: &Saver, prefix: &str) -> Vec<(String, Vec<u64>)> {
+        let bits = |x: &Tensor| {
+            let x = x.to_dtype(DType::F64).unwrap();
+            x.flatten_all().unwrap().to_vec1::<f64>().unwrap()
+        };
         s.save_state()
             .unwrap()
             .tensors

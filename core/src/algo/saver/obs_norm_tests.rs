@@ -201,3 +201,91 @@ fn aligned_scales_the_position_and_goal_alone() {
     let stored: Vec<f64> = stored_mean.to_vec1().unwrap();
     assert!((stored[2] - 2.0).abs() < 0.3, "{stored:?}");
 }
+
+/// `auto`'s rule on spreads measured under random actions (`saver-actor check`, seed
+/// 0): Reacher-v5's fingertip offset (entries 8-9) spreads 0.134 at most against its
+/// second joint cosine's 0.75, a share of 0.179 < 1/3; the point mass's p (0.52) is
+/// 6.5 times its speeds' 0.08, so not narrow; nothing outside p and g, or others that
+/// never move, leave it raw.
+#[test]
+fn auto_calls_p_narrow_only_under_a_third_of_the_widest_other_entry() {
+    use crate::algo::saver::obs_scale::narrow_position;
+    let reacher = [
+        0.681, 0.75, 0.624, 0.64, 0.0694, 0.105, 0.674, 0.712, 0.13, 0.134,
+    ];
+    let (ratio, k) = narrow_position(&reacher, &[8, 9], &[8, 9]).unwrap();
+    assert_eq!(k, 1);
+    assert!((ratio - 0.134 / 0.75).abs() < 1e-6, "{ratio}");
+    let pointmass = [0.52, 0.52, 0.08, 0.07, 0.54, 0.55];
+    assert_eq!(narrow_position(&pointmass, &[0, 1], &[0, 1, 4, 5]), None);
+    // The same spreads with the speeds 10 times wider: 0.52 / 0.8 = 0.65, still not.
+    let fast = [0.52, 0.52, 0.8, 0.7, 0.54, 0.55];
+    assert_eq!(narrow_position(&fast, &[0, 1], &[0, 1, 4, 5]), None);
+    // ... and 20 times wider: 0.52 / 1.6 = 0.325 < 1/3, narrow (against entry 2).
+    let faster = [0.52, 0.52, 1.6, 1.4, 0.54, 0.55];
+    assert_eq!(
+        narrow_position(&faster, &[0, 1], &[0, 1, 4, 5]).map(|(_, k)| k),
+        Some(2)
+    );
+    assert_eq!(narrow_position(&[0.1, 0.5], &[0, 1], &[0, 1]), None);
+    assert_eq!(narrow_position(&[0.1, 0.0], &[0], &[0]), None);
+}
+
+/// `auto` on the plane's layout: fresh weights read raw; the first batch decides once.
+/// With p spread 0.1× and the other entries 1× (column j is U(−1, 1)·scale + j), p's
+/// std ≈ 0.058 against 0.58: the weights then carry the moments of p and g (entries
+/// 0, 1, 4, 5) and raw for the speeds, as `aligned`'s do; with p wide they stay raw,
+/// and a later batch with p narrow does not change that. The checkpoint keeps the
+/// choice; one without it (an `aligned` run's) is refused by name.
+#[test]
+fn auto_reads_p_and_g_scaled_only_where_the_first_batch_finds_p_narrow() {
+    let spec = plane(Some(4));
+    let l = spec.layout();
+    let make = |norm| {
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+        config.saver.obs_norm = norm;
+        Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap()
+    };
+    let batch = |p_scale: f32| {
+        let mut b = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
+        for row in b.obs.chunks_exact_mut(6) {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = *v * if j < 2 { p_scale } else { 1.0 } + j as f32;
+            }
+        }
+        b
+    };
+    let carried = |s: &Saver| {
+        let t = s.policy_tensors().unwrap();
+        (find(&t, OBS_MEAN).unwrap(), find(&t, OBS_STD).unwrap())
+    };
+    let raw = (vec![0.0; 6], vec![1.0; 6]);
+    let mut narrow = make(ObsNorm::Auto);
+    assert_eq!(carried(&narrow), raw);
+    narrow.update(&batch(0.1)).unwrap();
+    let (mean, std) = carried(&narrow);
+    let mut aligned = make(ObsNorm::Aligned);
+    aligned.update(&batch(0.1)).unwrap();
+    assert_eq!((mean.clone(), std.clone()), carried(&aligned));
+    assert!((std[0] - 0.1 / 3f32.sqrt()).abs() < 0.01, "{std:?}");
+    assert!((mean[4] - 4.0).abs() < 0.2, "{mean:?}");
+    assert_eq!((mean[2], std[2]), (0.0, 1.0));
+    let mut wide = make(ObsNorm::Auto);
+    wide.update(&batch(1.0)).unwrap();
+    wide.update(&batch(0.1)).unwrap();
+    assert_eq!(carried(&wide), raw);
+    for s in [&narrow, &wide] {
+        let saved = s.save_state().unwrap();
+        let mut fresh = make(ObsNorm::Auto);
+        fresh
+            .restore_state(&|name: &str| saved.get(name), &saved.numbers)
+            .unwrap();
+        assert_eq!(carried(&fresh), carried(s));
+    }
+    let plain = aligned.save_state().unwrap();
+    let err = make(ObsNorm::Auto)
+        .restore_state(&|name: &str| plain.get(name), &plain.numbers)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("saver.obs_norm.auto"), "{err}");
+}
