@@ -131,8 +131,9 @@ impl ObsScale {
             match narrow {
                 Some((ratio, k)) => tracing::info!(
                     "saver.obs_norm auto: over the first batch p spreads {ratio:.2} of entry \
-                     {k}'s {:.3}: the agent and critics read p and g by their running \
-                     statistics (as `aligned`), every other entry raw",
+                     {k}'s {:.3}: the agent and critics read p (and the goal, where the \
+                     env declares one) by their running statistics (as `aligned`), every \
+                     other entry raw",
                     std[k]
                 ),
                 None => tracing::info!(
