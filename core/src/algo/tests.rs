@@ -12,6 +12,32 @@ use crate::rollout::Batch;
 use candle_core::{DType, Device, Tensor, Var};
 use std::sync::Arc;
 
+/// A custom env with the point mass's layout (p = entries 0-1, speeds 2-3, 2 actions),
+/// every entry within ±`half`, max_change 0.2, and its goal at `goal_start` (a success
+/// rule of radius 0.05) when given.
+pub(super) fn plane_spec(half: f32, goal_start: Option<usize>) -> EnvSpec {
+    let layout = EnvLayout {
+        obs_dim: 6,
+        continuous: 2,
+        choices: 0,
+        aligned_start: 0,
+        aligned_dim: 2,
+    };
+    let bounds = crate::env::EnvBounds {
+        obs_low: vec![-half; 6],
+        obs_high: vec![half; 6],
+        max_change: 0.2,
+    };
+    let rule = goal_start.map(|g| crate::env::SuccessRule {
+        radius: 0.05,
+        goal_start: Some(g),
+    });
+    EnvSpec::custom("plane", layout, bounds)
+        .unwrap()
+        .with_success(rule)
+        .unwrap()
+}
+
 pub(super) fn random_pcpn(layout: &EnvLayout, dtype: DType) -> Pcpn {
     Pcpn::random_frozen(layout, 11, dtype, &Device::Cpu).unwrap()
 }

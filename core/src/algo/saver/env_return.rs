@@ -298,29 +298,17 @@ impl EnvReturn {
 
 #[cfg(test)]
 mod tests {
-    use crate::algo::tests::{random_batch, random_pcpn};
+    use crate::algo::tests::{plane_spec, random_batch, random_pcpn};
     use crate::algo::{Algorithm, GradPath, Saver};
     use crate::config::Algo;
-    use crate::env::{EnvBounds, EnvLayout, EnvSpec};
+    use crate::env::EnvLayout;
     use crate::rollout::Batch;
     use candle_core::{DType, Device, Tensor};
 
     /// SAVER's config on a custom env of d = 2 (the point mass's layout: 6 entries, 2
     /// actions), with the env-return term at weight `w` and γ = 0.9, λ = 1.
     fn config(w: f64) -> crate::config::RunConfig {
-        let layout = EnvLayout {
-            obs_dim: 6,
-            continuous: 2,
-            choices: 0,
-            aligned_start: 0,
-            aligned_dim: 2,
-        };
-        let bounds = EnvBounds {
-            obs_low: vec![-1.0; 6],
-            obs_high: vec![1.0; 6],
-            max_change: 0.2,
-        };
-        let spec = EnvSpec::custom("plane", layout, bounds).unwrap();
+        let spec = plane_spec(1.0, None);
         let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
         (config.saver.env_reward, config.gamma) = (w, 0.9);
         (config.saver.pcpn_tune_lr, config.saver.minibatch_size) = (0.0, 0);

@@ -1,7 +1,7 @@
 //! `saver.obs_norm`: the agent and critics read normalised observations, the PCPN raw
 //! ones, and the statistics travel with the weights and the checkpoint.
 
-use crate::algo::tests::{random_batch, random_pcpn};
+use crate::algo::tests::{plane_spec, random_batch, random_pcpn};
 use crate::algo::{Algorithm, Saver};
 use crate::config::{Algo, ObsNorm};
 use crate::env::{EnvKind, EnvSpec};
@@ -130,30 +130,9 @@ fn the_bounds_scale_is_the_declared_range_for_the_whole_run() {
         .all(|(n, _)| !n.starts_with("saver.obs_norm")));
 }
 
-/// A custom env with the point mass's layout (p = entries 0-1, speeds 2-3), its goal
-/// at `goal_start` when declared.
+/// The plane (`plane_spec`) with entries within ±5 and its goal at `goal_start`.
 fn plane(goal_start: Option<usize>) -> EnvSpec {
-    use crate::env::{EnvBounds, EnvLayout, SuccessRule};
-    let layout = EnvLayout {
-        obs_dim: 6,
-        continuous: 2,
-        choices: 0,
-        aligned_start: 0,
-        aligned_dim: 2,
-    };
-    let bounds = EnvBounds {
-        obs_low: vec![-5.0; 6],
-        obs_high: vec![5.0; 6],
-        max_change: 0.2,
-    };
-    let rule = SuccessRule {
-        radius: 0.05,
-        goal_start,
-    };
-    EnvSpec::custom("plane", layout, bounds)
-        .unwrap()
-        .with_success(Some(rule))
-        .unwrap()
+    plane_spec(5.0, goal_start)
 }
 
 /// `aligned`: the position and the declared goal are scaled by their running moments,
