@@ -1,10 +1,10 @@
 //! How SAVER's agent and critics see the observations (`saver.obs_norm`;
 //! docs/ALGORITHM.md §7.1): raw, by running statistics (as PPO's `ppo.obs_norm`) of
 //! every entry or of the aligned ones alone (always, or where the first batch finds p
-//! narrow), or by the env's declared bounds. The PCPN
-//! reads them raw. The mean and scale travel with
-//! the policy's weights as `agent.obs_mean` / `agent.obs_std`, so every client that acts
-//! from them (the Rust actors, the Python package, `saver eval`) does the same.
+//! narrow), or by the env's declared bounds. The PCPN reads them raw. The mean and
+//! scale travel with the policy's weights as `agent.obs_mean` / `agent.obs_std`, so
+//! every client that acts from them (the Rust actors, the Python package, `saver
+//! eval`) does the same.
 
 use crate::config::ObsNorm;
 use crate::env::EnvSpec;
