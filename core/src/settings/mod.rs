@@ -167,7 +167,7 @@ pub struct SaverSettings {
     #[arg(id = "saver_env_clip", value_name = "EPS", long = "saver-env-clip", help = help("SAVER: ε of PPO's clip on the env-return term's policy gradient, the ratio taken to the policy that acted (it bites over --saver-epochs' passes and minibatches, and on lagged async batches; 0: off)", "saver.env_clip"))]
     #[serde(rename = "env_clip")]
     pub saver_env_clip: Option<f64>,
-    #[arg(id = "saver_obs_norm", value_name = "MODE", long = "saver-obs-norm", value_enum, help = help("SAVER: how the agent and critics see the observations: raw (off), by their running mean and variance (running), the aligned position and goal entries alone by theirs (aligned), or mapped from the env's declared bounds to [-1, 1] (bounds); the mean and scale travel with the weights, the PCPN reads them raw", "saver.obs_norm"))]
+    #[arg(id = "saver_obs_norm", value_name = "MODE", long = "saver-obs-norm", value_enum, help = help("SAVER: how the agent and critics see the observations: raw (off), by their running mean and variance (running), the aligned position and goal entries alone by theirs (aligned; auto: so where the first batch finds the position spread under a third of the widest other entry, else raw), or mapped from the env's declared bounds to [-1, 1] (bounds); the mean and scale travel with the weights, the PCPN reads them raw", "saver.obs_norm"))]
     #[serde(rename = "obs_norm")]
     pub saver_obs_norm: Option<ObsNorm>,
 }
