@@ -39,8 +39,14 @@ def act(w, meta, obs, rng):
     lo = -np.inf if params["log_std_min"] is None else params["log_std_min"]
     hi = np.inf if params["log_std_max"] is None else params["log_std_max"]
     h = obs
-    for i in range(3):
+    if "agent.obs_mean" in w:
+        # The observation normaliser: each entry's clip, or 10 (inf: not clipped).
+        b = w.get("agent.obs_clip", np.full(layout["obs_dim"], 10.0, dtype=np.float32))
+        h = np.clip((h - w["agent.obs_mean"]) / w["agent.obs_std"], -b, b)
+    i = 0
+    while f"agent.l{i}.w" in w:
         h = np.maximum(h @ w[f"agent.l{i}.w"] + w[f"agent.l{i}.b"], 0.0)
+        i += 1
     raw = h @ w["agent.mu.w"] + w["agent.mu.b"]
     mu = bound * np.tanh(raw) if bound is not None else raw
     log_std = np.clip(w["agent.log_std"], lo, hi)

@@ -4,8 +4,9 @@ They follow the `architecture` text each weights file carries and are held to th
 Rust actors' policies by tests/python/test_saver_actor.py (through `saver act`).
 
 gaussian-mlp (A2C, SAVER, PPO): mu = MLP(x) with x = obs, or
-clip((obs - agent.obs_mean) / agent.obs_std, -10, 10) when the weights carry that
-observation normaliser (PPO's ppo.obs_norm) (the run's hidden widths, 256-128-64 by
+clip((obs - agent.obs_mean) / agent.obs_std, -b, b) when the weights carry that
+observation normaliser (PPO's ppo.obs_norm, SAVER's saver.obs_norm), b = 10, or each
+entry's agent.obs_clip where the weights hold it (inf: the entry is not clipped) (the run's hidden widths, 256-128-64 by
 default, ReLU; as many agent.l{i} layers as the weights hold), bounded by
 mu_bound * tanh when mu_bound is finite; log_std = clamp(agent.log_std); continuous
 action = mu + exp(log_std) * N(0, 1); a choice ~ softmax(logits) as a one-hot.
@@ -61,9 +62,11 @@ class Gaussian:
         self.log_std = np.clip(log_std, np.float32(lo), np.float32(hi)) if bounded else log_std
         self.sigma = np.exp(self.log_std)
         self.payload_width = 2 * self.c + self.ch
-        self.obs_norm: Optional[Tuple[np.ndarray, np.ndarray]] = None
+        self.obs_norm: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None
         if ("agent.obs_mean" in tensors) != ("agent.obs_std" in tensors):
             raise ValueError("the weights hold one of agent.obs_mean and agent.obs_std without the other")
+        if "agent.obs_clip" in tensors and "agent.obs_mean" not in tensors:
+            raise ValueError("the weights hold agent.obs_clip without agent.obs_mean and agent.obs_std")
         if "agent.obs_mean" in tensors:
             mean = tensors["agent.obs_mean"].astype(np.float32)
             std = tensors["agent.obs_std"].astype(np.float32)
@@ -71,13 +74,20 @@ class Gaussian:
                 raise ValueError("the observation normaliser does not fit the env layout")
             if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(std)) and np.all(std > 0)):
                 raise ValueError("agent.obs_mean must be finite and agent.obs_std finite and > 0")
-            self.obs_norm = (mean, std)
+            bound = np.full(layout.obs_dim, 10.0, dtype=np.float32)
+            if "agent.obs_clip" in tensors:
+                bound = tensors["agent.obs_clip"].astype(np.float32)
+                if bound.shape != (layout.obs_dim,):
+                    raise ValueError("agent.obs_clip does not fit the env layout")
+                if not np.all(bound > 0):
+                    raise ValueError("agent.obs_clip must be > 0 in every entry (inf: not clipped)")
+            self.obs_norm = (mean, std, bound)
 
     def mean(self, obs: np.ndarray) -> np.ndarray:
         h = np.asarray(obs, dtype=np.float32)
         if self.obs_norm is not None:
-            m, s = self.obs_norm
-            h = np.clip((h - m) / s, np.float32(-10.0), np.float32(10.0))
+            m, s, b = self.obs_norm
+            h = np.clip((h - m) / s, -b, b)
         for i, (w, b) in enumerate(self.layers):
             h = h @ w + b
             if i < self.hidden:

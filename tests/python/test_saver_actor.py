@@ -33,7 +33,7 @@ import grpc
 import gymnasium as gym
 import numpy as np
 from safetensors import safe_open
-from safetensors.numpy import load
+from safetensors.numpy import load, save_file
 from saver_actor import Actor, Connection, EnvDecl, EnvError, Policy, Refused, factory_function, policy_for
 from saver_actor._proto import saver_pb2 as pb
 from saver_actor._proto import saver_pb2_grpc as pb_grpc
@@ -153,6 +153,9 @@ def test_numpy_policies_act_as_the_rust_ones():
         # An observation normaliser in the weights (PPO's --ppo-obs-norm), set to
         # statistics far from the identity below.
         ("ppo-obs-norm-angle", ["--algo", "ppo", "--env", "angle", "--dim", "4", "--ppo-obs-norm", "true"]),
+        # ... with each entry's own clip (agent.obs_clip, as SAVER's aligned/auto
+        # publish it): inf (raw entries pass whole), 10, and bounds small enough to cut.
+        ("ppo-obs-clip-angle", ["--algo", "ppo", "--env", "angle", "--dim", "4", "--ppo-obs-norm", "true"]),
     ]
     rng = np.random.default_rng(0)
     for name, args in cases:
@@ -167,6 +170,25 @@ def test_numpy_policies_act_as_the_rust_ones():
             mean, std = rng.uniform(-0.5, 0.5, n), rng.uniform(0.05, 2.0, n)
             path = with_tensors(path, {"agent.obs_mean": mean, "agent.obs_std": std})
             tensors = load(open(path, "rb").read())
+        if name == "ppo-obs-clip-angle":
+            with safe_open(path, "np") as f:
+                metadata = f.metadata()
+            tensors["agent.obs_clip"] = rng.choice(np.array([np.inf, 10.0, 0.5, 2.0], dtype=np.float32),
+                                                   layout.obs_dim)
+            tensors["agent.obs_clip"][:2] = [np.inf, 0.5]
+            path = path + ".clip.safetensors"
+            save_file(tensors, path, metadata)
+            # A bound of 0 (or NaN) is refused by both, with the tensor's name.
+            bad = dict(tensors, **{"agent.obs_clip": np.where(np.arange(layout.obs_dim) == 1, 0.0,
+                                                               tensors["agent.obs_clip"]).astype(np.float32)})
+            save_file(bad, path + ".bad", metadata)
+            refused = subprocess.run([SAVER, "act", path + ".bad"], input="", capture_output=True, text=True)
+            assert refused.returncode != 0 and "agent.obs_clip" in refused.stderr, refused.stderr
+            try:
+                Policy.load(path + ".bad")
+                raise AssertionError("a bound of 0 was taken")
+            except ValueError as e:
+                assert "agent.obs_clip" in str(e), e
         obs = rng.uniform(np.array(settings.env.bounds.obs_low), np.array(settings.env.bounds.obs_high),
                           (64, layout.obs_dim)).astype(np.float32)
         lines = "\n".join(json.dumps(o.tolist()) for o in obs) + "\n"

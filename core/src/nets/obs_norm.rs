@@ -3,7 +3,9 @@
 //! ±10) in front of the policy. The learner keeps the statistics (PPO's
 //! `ppo.obs_norm`); they travel with the policy's weights as [`OBS_MEAN`] and
 //! [`OBS_STD`], so every client that acts from the weights (the Rust actors, the
-//! Python package, `saver eval`) normalises alike.
+//! Python package, `saver eval`) normalises alike. Weights that scale some entries and
+//! leave others raw (SAVER's `aligned` and `auto`) carry [`OBS_BOUND`] too: each entry's
+//! own clip, +∞ for an entry read as it is, so a raw entry beyond ±10 is not cut.
 
 use crate::{CoreError, Result};
 use candle_core::{DType, Device, Tensor};
@@ -13,6 +15,9 @@ use saver_proto::NamedTensor;
 pub const OBS_MEAN: &str = "agent.obs_mean";
 /// The weights' tensor of √(var + 1e-8), [obs_dim].
 pub const OBS_STD: &str = "agent.obs_std";
+/// The weights' optional tensor of each entry's clip, [obs_dim], every value > 0 (+∞: not
+/// clipped); without it every entry is clipped to ±[`OBS_CLIP`].
+pub const OBS_BOUND: &str = "agent.obs_clip";
 /// Normalised observations are clipped to ±this (SB3's `clip_obs`).
 pub const OBS_CLIP: f32 = 10.0;
 /// Added to the variance before the square root (SB3's `epsilon`).
@@ -80,7 +85,7 @@ impl RunningStats {
 
     /// The two tensors the policy's weights carry.
     pub fn weights(&self) -> Vec<NamedTensor> {
-        weights(self.mean_f32(), self.std())
+        weights(self.mean_f32(), self.std(), None)
     }
 
     /// The checkpoint tensors `{prefix}.count`, `.mean`, `.var` (f64, so a resumed run
@@ -112,32 +117,38 @@ impl RunningStats {
     }
 }
 
-/// The weights' [`OBS_MEAN`] and [`OBS_STD`] of a mean and scale.
-pub fn weights(mean: Vec<f32>, std: Vec<f32>) -> Vec<NamedTensor> {
+/// The weights' [`OBS_MEAN`] and [`OBS_STD`] of a mean and scale, and [`OBS_BOUND`]
+/// where the entries' clips differ from ±[`OBS_CLIP`].
+pub fn weights(mean: Vec<f32>, std: Vec<f32>, bound: Option<Vec<f32>>) -> Vec<NamedTensor> {
     let n = mean.len();
-    vec![
-        NamedTensor {
-            name: OBS_MEAN.into(),
-            shape: vec![n],
-            data: mean,
-        },
-        NamedTensor {
-            name: OBS_STD.into(),
-            shape: vec![n],
-            data: std,
-        },
-    ]
+    let named = |name: &str, data| NamedTensor {
+        name: name.into(),
+        shape: vec![n],
+        data,
+    };
+    let mut t = vec![named(OBS_MEAN, mean), named(OBS_STD, std)];
+    t.extend(bound.map(|b| named(OBS_BOUND, b)));
+    t
 }
 
 /// `obs` [k, n] normalised on its device as [`normalize`] does on the host.
-pub fn normalize_tensor(obs: &Tensor, mean: &[f32], std: &[f32]) -> Result<Tensor> {
+pub fn normalize_tensor(
+    obs: &Tensor,
+    mean: &[f32],
+    std: &[f32],
+    bound: Option<&[f32]>,
+) -> Result<Tensor> {
     let (n, dev) = (mean.len(), obs.device());
     let mean = Tensor::from_slice(mean, (1, n), dev)?;
     let std = Tensor::from_slice(std, (1, n), dev)?;
-    Ok(obs
-        .broadcast_sub(&mean)?
-        .broadcast_div(&std)?
-        .clamp(-OBS_CLIP, OBS_CLIP)?)
+    let x = obs.broadcast_sub(&mean)?.broadcast_div(&std)?;
+    Ok(match bound {
+        None => x.clamp(-OBS_CLIP, OBS_CLIP)?,
+        Some(b) => {
+            let hi = Tensor::from_slice(b, (1, n), dev)?;
+            x.broadcast_minimum(&hi)?.broadcast_maximum(&hi.neg()?)?
+        }
+    })
 }
 
 /// The saved tensor `name` as f64s; a clear error where the state has none.
@@ -147,24 +158,39 @@ pub fn read_f64s(get: &dyn Fn(&str) -> Option<Tensor>, name: &str) -> Result<Vec
     Ok(t.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?)
 }
 
-/// Normalises observations `obs` ([k, n] row-major) in place: clip((o − mean)/std, ±10).
-pub fn normalize(obs: &mut [f32], mean: &[f32], std: &[f32]) {
+/// Normalises observations `obs` ([k, n] row-major) in place: clip((o − mean)/std, ±b),
+/// b each entry's `bound` (±10 without).
+pub fn normalize(obs: &mut [f32], mean: &[f32], std: &[f32], bound: Option<&[f32]>) {
     let n = mean.len();
     for row in obs.chunks_exact_mut(n.max(1)) {
-        for ((o, &m), &s) in row.iter_mut().zip(mean).zip(std) {
-            *o = ((*o - m) / s).clamp(-OBS_CLIP, OBS_CLIP);
+        for (j, ((o, &m), &s)) in row.iter_mut().zip(mean).zip(std).enumerate() {
+            let b = bound.map_or(OBS_CLIP, |b| b[j]);
+            *o = ((*o - m) / s).clamp(-b, b);
         }
     }
 }
 
-/// The indices of [`OBS_MEAN`] and [`OBS_STD`] in a policy's weights when it carries
-/// both (each [obs_dim], the std finite and > 0); `None` when it carries neither.
+/// Where a policy's weights hold the observation normaliser: the indices of
+/// [`OBS_MEAN`], [`OBS_STD`] and, where present, [`OBS_BOUND`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ObsNormAt {
+    pub mean: usize,
+    pub std: usize,
+    pub bound: Option<usize>,
+}
+
+/// Where a policy's weights hold [`OBS_MEAN`] and [`OBS_STD`] when it carries both
+/// (each [obs_dim], the std finite and > 0), and [`OBS_BOUND`] where it carries one
+/// ([obs_dim], each > 0, +∞ allowed); `None` when it carries neither mean nor std.
 pub(crate) fn find_in(
     weights: &crate::acting::PolicyWeights,
     obs_dim: usize,
-) -> Result<Option<(usize, usize)>> {
+) -> Result<Option<ObsNormAt>> {
     let at = |name: &str| weights.tensors.iter().position(|t| t.name == name);
     match (at(OBS_MEAN), at(OBS_STD)) {
+        (None, None) if at(OBS_BOUND).is_some() => Err(CoreError::Checkpoint(format!(
+            "weights hold {OBS_BOUND} without {OBS_MEAN} and {OBS_STD}"
+        ))),
         (None, None) => Ok(None),
         (Some(_), Some(_)) => {
             let m = super::weight_index(weights, OBS_MEAN, &[obs_dim])?;
@@ -180,7 +206,27 @@ pub(crate) fn find_in(
                     "weights {OBS_MEAN} must be finite and {OBS_STD} finite and > 0"
                 )));
             }
-            Ok(Some((m, s)))
+            let bound = match at(OBS_BOUND) {
+                None => None,
+                Some(_) => {
+                    let b = super::weight_index(weights, OBS_BOUND, &[obs_dim])?;
+                    if weights.tensors[b]
+                        .data
+                        .iter()
+                        .any(|&v| v.is_nan() || v <= 0.0)
+                    {
+                        return Err(CoreError::Checkpoint(format!(
+                            "weights {OBS_BOUND} must be > 0 in every entry (+inf: not clipped)"
+                        )));
+                    }
+                    Some(b)
+                }
+            };
+            Ok(Some(ObsNormAt {
+                mean: m,
+                std: s,
+                bound,
+            }))
         }
         _ => Err(CoreError::Checkpoint(format!(
             "weights hold one of {OBS_MEAN} and {OBS_STD} without the other"
@@ -213,7 +259,7 @@ mod tests {
         assert!((s.mean[1] - 10.0).abs() < 1e-3, "{s:?}");
         assert!((s.var[1] - 1.68328e-3).abs() < 1e-7, "{s:?}");
         let mut obs = [3.5f32, 10.0, 100.0, -100.0];
-        normalize(&mut obs, &s.mean_f32(), &s.std());
+        normalize(&mut obs, &s.mean_f32(), &s.std(), None);
         assert!(obs[0].abs() < 1e-3, "{obs:?}");
         // Entry 1's variance is ~2e-3 (the starting count's pull): 90/√2e-3 is far
         // beyond the clip, as is (100 − 3.5)/1.71 = 56.5.
@@ -223,5 +269,57 @@ mod tests {
         let before = s.clone();
         s.update(&[]);
         assert_eq!(s, before);
+    }
+
+    /// [`OBS_BOUND`] clips each entry at its own bound: +∞ passes a raw entry through
+    /// whole (100 stays 100), 10 cuts as without the tensor, and the tensor form on a
+    /// device does the same as the host's.
+    #[test]
+    fn each_entry_is_clipped_at_its_own_bound() {
+        // Entries: (100 − 0)/1 = 100 unclipped; (−100 − 0)/1 at bound 10 = −10;
+        // (3 − 1)/0.5 = 4 at bound 2.5 = 2.5.
+        let (mean, std, bound) = (
+            [0.0f32, 0.0, 1.0],
+            [1.0f32, 1.0, 0.5],
+            [f32::INFINITY, 10.0, 2.5],
+        );
+        let rows = [100.0f32, -100.0, 3.0, -7.0, 5.0, -1.0];
+        let mut host = rows;
+        normalize(&mut host, &mean, &std, Some(&bound));
+        // Second row: −7 within +∞; 5 within 10; (−1 − 1)/0.5 = −4 at 2.5 = −2.5.
+        assert_eq!(host, [100.0, -10.0, 2.5, -7.0, 5.0, -2.5]);
+        let t = Tensor::from_slice(&rows, (2, 3), &Device::Cpu).unwrap();
+        let dev = normalize_tensor(&t, &mean, &std, Some(&bound)).unwrap();
+        assert_eq!(dev.flatten_all().unwrap().to_vec1::<f32>().unwrap(), host);
+        let mut plain = rows;
+        normalize(&mut plain, &mean, &std, None);
+        assert_eq!(plain, [10.0, -10.0, 4.0, -7.0, 5.0, -4.0]);
+    }
+
+    /// A client refuses a bound that is not > 0 (0, negative, NaN) and one without the
+    /// mean and scale; +∞ is a bound.
+    #[test]
+    fn weights_with_a_bad_bound_are_refused() {
+        let with = |tensors| crate::acting::PolicyWeights {
+            version: 0,
+            tensors,
+        };
+        let ok = with(weights(
+            vec![0.0; 2],
+            vec![1.0; 2],
+            Some(vec![f32::INFINITY, 10.0]),
+        ));
+        let at = find_in(&ok, 2).unwrap().unwrap();
+        assert_eq!(ok.tensors[at.bound.unwrap()].name, OBS_BOUND);
+        for bad in [0.0, -1.0, f32::NAN] {
+            let w = with(weights(vec![0.0; 2], vec![1.0; 2], Some(vec![1.0, bad])));
+            let e = find_in(&w, 2).unwrap_err().to_string();
+            assert!(e.contains("must be > 0"), "{e}");
+        }
+        let alone = with(weights(vec![0.0; 2], vec![1.0; 2], Some(vec![1.0; 2]))[2..].to_vec());
+        let e = find_in(&alone, 2).unwrap_err().to_string();
+        assert!(e.contains("without"), "{e}");
+        let short = with(weights(vec![0.0; 2], vec![1.0; 2], Some(vec![1.0])));
+        assert!(find_in(&short, 2).is_err());
     }
 }

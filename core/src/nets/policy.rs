@@ -191,8 +191,9 @@ impl PolicyFamily for Gaussian {
     fn architecture(&self) -> String {
         let l = &self.layout;
         format!(
-            "h0 = obs[{o}], or clip((obs - agent.obs_mean) / agent.obs_std, -10, 10) when the \
-             weights hold both (an observation normaliser); h(i+1) = relu(h(i) @ agent.l(i).w + agent.l(i).b) for each stored \
+            "h0 = obs[{o}], or clip((obs - agent.obs_mean) / agent.obs_std, -b, b) when the \
+             weights hold both (an observation normaliser), b = agent.obs_clip per entry \
+             where the weights hold it (inf: that entry is not clipped), else 10; h(i+1) = relu(h(i) @ agent.l(i).w + agent.l(i).b) for each stored \
              agent.l(i) in turn, i = 0 .. L-1 (w stored [in, out]; the run's hidden widths, \
              {t:?} by default); raw = h(L) @ agent.mu.w + agent.mu.b [{m}]; \
              mu = mu_bound * tanh(raw) if mu_bound is finite, else raw; \
@@ -255,9 +256,9 @@ pub struct Policy {
     layers: Vec<Layer>,
     /// Index of `agent.log_std`.
     log_std: usize,
-    /// Indices of the observation normaliser's mean and std, when the weights carry one
-    /// (obs_norm.rs).
-    obs_norm: Option<(usize, usize)>,
+    /// Where the observation normaliser's mean, std and bounds are, when the weights
+    /// carry one (obs_norm.rs).
+    obs_norm: Option<super::obs_norm::ObsNormAt>,
     /// The env layout.
     layout: EnvLayout,
     /// Output bounds, as in training.
@@ -307,9 +308,10 @@ impl Policy {
         let [a, b] = &mut self.buf;
         a.clear();
         a.extend_from_slice(obs);
-        if let Some((m, s)) = self.obs_norm {
+        if let Some(at) = self.obs_norm {
             let t = &self.weights.tensors;
-            super::obs_norm::normalize(a, &t[m].data, &t[s].data);
+            let bound = at.bound.map(|b| t[b].data.as_slice());
+            super::obs_norm::normalize(a, &t[at.mean].data, &t[at.std].data, bound);
         }
         let last = self.layers.len() - 1;
         for (li, l) in self.layers.iter().enumerate() {

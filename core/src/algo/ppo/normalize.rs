@@ -63,7 +63,7 @@ impl Normalizers {
         let (mean, std) = (s.mean_f32(), s.std());
         let mut b = batch.clone();
         for rows in [&mut b.obs, &mut b.last_obs, &mut b.timeout_obs] {
-            normalize(rows, &mean, &std);
+            normalize(rows, &mean, &std, None);
         }
         Some(b)
     }

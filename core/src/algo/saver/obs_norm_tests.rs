@@ -268,3 +268,59 @@ fn auto_reads_p_and_g_scaled_only_where_the_first_batch_finds_p_narrow() {
         .to_string();
     assert!(err.contains("saver.obs_norm.auto"), "{err}");
 }
+
+/// An entry `aligned` and `auto` read raw is read exactly as under `off`, however large:
+/// on the plane with its speeds (entries 2, 3) near 50, far past the ±10 clip, `auto`
+/// with p wide takes `off`'s updates bit for bit, its weights clip no entry (+∞ in
+/// `agent.obs_clip`) and an acting policy built from them gives `off`'s μ on such an
+/// observation. `aligned` clips p and g (±10) and passes the speeds (+∞).
+#[test]
+fn raw_entries_are_not_clipped() {
+    use crate::nets::obs_norm::{OBS_BOUND, OBS_CLIP};
+    let spec = plane(Some(4));
+    let l = spec.layout();
+    let make = |norm| {
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+        config.saver.obs_norm = norm;
+        Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap()
+    };
+    // Column j: U(−1, 1) + 50 for the speeds (spread 0.58, as p's), j elsewhere.
+    let mut batch = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
+    for row in batch.obs.chunks_exact_mut(6) {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v += if [2, 3].contains(&j) { 50.0 } else { j as f32 };
+        }
+    }
+    let (mut auto, mut off, mut aligned) = (
+        make(ObsNorm::Auto),
+        make(ObsNorm::Off),
+        make(ObsNorm::Aligned),
+    );
+    for _ in 0..2 {
+        for s in [&mut auto, &mut off, &mut aligned] {
+            s.update(&batch).unwrap();
+        }
+    }
+    assert!(
+        agent_bits(&auto) == agent_bits(&off),
+        "auto with p wide updates otherwise than off"
+    );
+    let t = auto.policy_tensors().unwrap();
+    assert_eq!(find(&t, OBS_BOUND), Some(vec![f32::INFINITY; 6]));
+    let bound = find(&aligned.policy_tensors().unwrap(), OBS_BOUND).unwrap();
+    let inf = f32::INFINITY;
+    assert_eq!(bound, [OBS_CLIP, OBS_CLIP, inf, inf, OBS_CLIP, OBS_CLIP]);
+    let head = crate::algo::recommended(&spec, Algo::Saver, 1).head;
+    let policy = |s: &Saver| {
+        let w = crate::acting::PolicyWeights {
+            version: 1,
+            tensors: s.policy_tensors().unwrap(),
+        };
+        crate::nets::Policy::new(std::sync::Arc::new(w), l, head).unwrap()
+    };
+    let obs = [0.3, -0.2, 55.0, -48.0, 4.0, 5.0];
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    policy(&auto).mean(&obs, &mut a);
+    policy(&off).mean(&obs, &mut b);
+    assert_eq!(a, b);
+}

@@ -8,7 +8,7 @@
 
 use crate::config::ObsNorm;
 use crate::env::EnvSpec;
-use crate::nets::obs_norm::{normalize_tensor, read_f64s, weights, RunningStats};
+use crate::nets::obs_norm::{normalize_tensor, read_f64s, weights, RunningStats, OBS_CLIP};
 use crate::Result;
 use candle_core::Tensor;
 use saver_proto::NamedTensor;
@@ -82,13 +82,15 @@ impl ObsScale {
         }
     }
 
-    fn mean_std(&self) -> (Vec<f32>, Vec<f32>) {
+    /// The mean, the scale and, where some entries are read raw, each entry's clip (±10
+    /// where scaled, none where raw, so a raw entry reads exactly as under `off`).
+    fn mean_std(&self) -> (Vec<f32>, Vec<f32>, Option<Vec<f32>>) {
         let (stats, scaled) = match self {
-            Self::Bounds { mean, std } => return (mean.clone(), std.clone()),
+            Self::Bounds { mean, std } => return (mean.clone(), std.clone(), None),
             Self::Running { stats, scaled } => (stats, scaled),
         };
         let only: &[usize] = match scaled {
-            Scaled::All => return (stats.mean_f32(), stats.std()),
+            Scaled::All => return (stats.mean_f32(), stats.std(), None),
             Scaled::Only(e) => e,
             Scaled::Auto {
                 entries,
@@ -98,18 +100,18 @@ impl ObsScale {
             Scaled::Auto { .. } => &[],
         };
         let n = stats.mean.len();
-        let (mut mean, mut std) = (vec![0.0; n], vec![1.0; n]);
+        let (mut mean, mut std, mut bound) = (vec![0.0; n], vec![1.0; n], vec![f32::INFINITY; n]);
         let (m, s) = (stats.mean_f32(), stats.std());
         for &j in only {
-            (mean[j], std[j]) = (m[j], s[j]);
+            (mean[j], std[j], bound[j]) = (m[j], s[j], OBS_CLIP);
         }
-        (mean, std)
+        (mean, std, Some(bound))
     }
 
     /// `obs` [N, obs_dim] as the agent reads it.
     pub(super) fn normalize(&self, obs: &Tensor) -> Result<Tensor> {
-        let (mean, std) = self.mean_std();
-        normalize_tensor(obs, &mean, &std)
+        let (mean, std, bound) = self.mean_std();
+        normalize_tensor(obs, &mean, &std, bound.as_deref())
     }
 
     /// After an update: the batch's raw observations join the running statistics, and
@@ -147,8 +149,8 @@ impl ObsScale {
 
     /// The tensors the policy's weights carry.
     pub(super) fn weights(&self) -> Vec<NamedTensor> {
-        let (mean, std) = self.mean_std();
-        weights(mean, std)
+        let (mean, std, bound) = self.mean_std();
+        weights(mean, std, bound)
     }
 
     /// The checkpoint's tensors (the running statistics and `auto`'s choice; the
