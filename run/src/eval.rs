@@ -147,37 +147,61 @@ pub fn learner_evaluator(config: &RunConfig) -> Option<saver_learner::best::Eval
     }))
 }
 
-/// The run settings and weights `source` names: a run folder or a weights file.
+/// The run settings and weights `source` names: a run folder or a weights file. A run
+/// folder's weights are its policy.safetensors (the newest, written with every
+/// checkpoint, with whatever observation normaliser the policy reads through); a folder
+/// without one (written before it existed) gives its checkpoint's agent, unless that
+/// agent read normalised observations, whose mean and scale only the weights carry.
 pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
-    if source.is_dir() {
-        let cfg = source.join("config.toml");
-        let text = std::fs::read_to_string(&cfg).with_context(|| {
-            format!(
-                "reading {} (is {} a run folder?)",
-                cfg.display(),
-                source.display()
-            )
-        })?;
-        let config =
-            RunConfig::from_toml(&text).with_context(|| format!("reading {}", cfg.display()))?;
-        let ckpt = source.join("checkpoint.safetensors");
-        let bytes = std::fs::read(&ckpt)
-            .with_context(|| format!("reading {} (has the run saved one yet?)", ckpt.display()))?;
-        let (tensors, meta) =
-            saver_proto::decode(&bytes).with_context(|| ckpt.display().to_string())?;
-        let version = meta
-            .get("version")
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0);
-        let tensors = tensors
-            .into_iter()
-            .filter(|t| t.name.starts_with("agent."))
-            .collect();
-        return Ok((
-            ActorSettings::of(&config),
-            Arc::new(PolicyWeights { version, tensors }),
-        ));
+    if !source.is_dir() {
+        return load_file(source);
     }
+    let cfg = source.join("config.toml");
+    let text = std::fs::read_to_string(&cfg).with_context(|| {
+        format!(
+            "reading {} (is {} a run folder?)",
+            cfg.display(),
+            source.display()
+        )
+    })?;
+    let config =
+        RunConfig::from_toml(&text).with_context(|| format!("reading {}", cfg.display()))?;
+    let policy = source.join(saver_learner::best::POLICY_FILE);
+    if policy.is_file() {
+        let (_, weights) = load_file(&policy)?;
+        return Ok((ActorSettings::of(&config), weights));
+    }
+    let ckpt = source.join("checkpoint.safetensors");
+    let bytes = std::fs::read(&ckpt)
+        .with_context(|| format!("reading {} (has the run saved one yet?)", ckpt.display()))?;
+    let (tensors, meta) =
+        saver_proto::decode(&bytes).with_context(|| ckpt.display().to_string())?;
+    if let Some(t) = tensors.iter().find(|t| t.name.contains(".obs_norm.")) {
+        bail!(
+            "{}: the run's agent reads normalised observations ({}), whose mean and scale \
+             only its weights carry, and the folder has no {}: evaluate a weights file of \
+             the run instead",
+            ckpt.display(),
+            t.name,
+            saver_learner::best::POLICY_FILE
+        );
+    }
+    let version = meta
+        .get("version")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    let tensors = tensors
+        .into_iter()
+        .filter(|t| t.name.starts_with("agent."))
+        .collect();
+    Ok((
+        ActorSettings::of(&config),
+        Arc::new(PolicyWeights { version, tensors }),
+    ))
+}
+
+/// The settings (from its metadata) and weights of a self-describing weights file.
+fn load_file(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
     let bytes = std::fs::read(source).with_context(|| format!("reading {}", source.display()))?;
     let (tensors, meta) =
         saver_proto::decode(&bytes).with_context(|| source.display().to_string())?;
