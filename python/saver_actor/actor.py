@@ -10,6 +10,7 @@ import queue
 import random
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Callable, List, Optional
 
@@ -148,6 +149,10 @@ class _Weights:
         _end(self.call, self.thread)
 
 
+# Seconds _end waits for a cancelled stream's reader thread to end.
+READER_JOIN_S = 60.0
+
+
 def _end(call, thread: threading.Thread) -> None:
     """Cancels a streaming call and waits for the thread that reads it to see the end.
     A reader left running is a daemon thread that interpreter exit freezes wherever it
@@ -156,7 +161,13 @@ def _end(call, thread: threading.Thread) -> None:
     its run finished, hung in grpc's _Rendezvous.__del__)."""
     call.cancel()
     if thread is not threading.current_thread():
-        thread.join(timeout=10)
+        # Bounded, so that a reader grpc never wakes cannot hang the actor; generous, as
+        # the reader needs the GIL and a core to see the cancel (a test saw one still
+        # running after 10 s with 2 cores under a load of ~15 processes).
+        thread.join(timeout=READER_JOIN_S)
+        if thread.is_alive():
+            warnings.warn(f"{thread.name}: the stream's reader is still running {READER_JOIN_S:.0f} s after its "
+                          "call was cancelled", RuntimeWarning, stacklevel=2)
 
 
 class _Rollouts:
@@ -267,15 +278,16 @@ class Actor:
         n, e = s.rollout, self.n_envs
         params = dict(s.policy.params)
         rng = np.random.default_rng([s.seed, 1000 + reply.actor_id])
-        weights = _Weights(stub, self.conn)
-        rollouts = _Rollouts(stub, self.conn, reply.actor_id, reply.session)
         complete = self.decl.completes(s.complete_at_success)
         if s.complete_at_success and not complete and self.summary.registrations == 1:
             why = ("sets complete_at_success=False" if self.decl.can_complete
                    else "has no success_radius or a vector_reward of its own")
             self.log(f"{self.name}: the run completes the progress reward at success, but {self.decl.name} {why}: "
                      f"its rewards stay as they are")
+        weights = _Weights(stub, self.conn)
+        rollouts: Optional[_Rollouts] = None
         try:
+            rollouts = _Rollouts(stub, self.conn, reply.actor_id, reply.session)
             # Fresh envs for every registration: the learner counts episodes from seq 0.
             obs = np.stack(self._reset(range(e), s.seed, reply.actor_id))
             running = np.zeros(e, dtype=np.int64)
@@ -308,7 +320,8 @@ class Actor:
                 seq += 1
                 want = version + 1
         finally:
-            rollouts.close()
+            if rollouts is not None:
+                rollouts.close()
             weights.close()
 
     def _reset(self, indices, seed: Optional[int] = None, actor_id: int = 0) -> List[np.ndarray]:

@@ -28,6 +28,7 @@ import sys
 import tempfile
 import threading
 import time
+import traceback
 
 import grpc
 import gymnasium as gym
@@ -317,8 +318,11 @@ def test_token_and_tls_as_for_the_rust_actor():
         assert s.steps >= 3200 and s.rollouts >= 3200 // 16, s
         # The stream readers have ended with the run: no daemon thread is left for
         # interpreter exit to freeze inside a call's lock.
-        left = [t.name for t in set(threading.enumerate()) - before if t.is_alive()]
-        assert not left, left
+        left = [t for t in set(threading.enumerate()) - before if t.is_alive()]
+        # Where a reader is left, where it is stuck (for the next diagnosis).
+        frames = sys._current_frames()
+        assert not left, [(t.name, "".join(traceback.format_stack(frames[t.ident])) if t.ident in frames else "")
+                          for t in left]
         print(f"  TLS with a token: {s.rollouts} rollouts, {s.steps} steps; a wrong token refused")
     finally:
         srv.stop()
