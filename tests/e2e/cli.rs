@@ -255,9 +255,6 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
     std::fs::remove_dir_all(dir).ok();
 }
 
-/// `saver repro` on a tiny arm grid with a variant of the user's: every run, the figure,
-/// a table row per series, a manifest naming each SAVER run's PCPN, and a rerun that
-/// finds every run finished.
 /// `saver eval` on a run folder acts with the policy the run published, normaliser
 /// included: a PPO run with `--ppo-obs-norm` scores the same from its folder as from
 /// its policy.safetensors (the folder read its checkpoint's agent without the mean and
@@ -311,6 +308,9 @@ fn eval_of_a_run_folder_reads_through_its_normaliser() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// `saver repro` on a tiny arm grid with a variant of the user's: every run, the figure,
+/// a table row per series, a manifest naming each SAVER run's PCPN, and a rerun that
+/// finds every run finished.
 #[test]
 fn repro_runs_a_grid_with_a_users_variant_and_says_what_made_it() {
     let dir = temp_dir("repro");

@@ -135,6 +135,19 @@ fn plane(goal_start: Option<usize>) -> EnvSpec {
     plane_spec(5.0, goal_start)
 }
 
+/// SAVER on the plane with its goal at entries 4-5, reading the observations as `norm`.
+fn plane_saver(norm: ObsNorm) -> Saver {
+    let spec = plane(Some(4));
+    let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+    config.saver.obs_norm = norm;
+    Saver::new(
+        &config,
+        random_pcpn(&spec.layout(), DType::F32),
+        &Device::Cpu,
+    )
+    .unwrap()
+}
+
 /// `aligned`: the position and the declared goal are scaled by their running moments,
 /// every other entry travels as mean 0, scale 1 (read raw), while all entries' moments
 /// are kept (the checkpoint holds the same statistics as `running`'s). Entries are
@@ -220,11 +233,7 @@ fn auto_calls_p_narrow_only_under_a_third_of_the_widest_other_entry() {
 fn auto_reads_p_and_g_scaled_only_where_the_first_batch_finds_p_narrow() {
     let spec = plane(Some(4));
     let l = spec.layout();
-    let make = |norm| {
-        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
-        config.saver.obs_norm = norm;
-        Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap()
-    };
+    let make = plane_saver;
     let batch = |p_scale: f32| {
         let mut b = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
         for row in b.obs.chunks_exact_mut(6) {
@@ -279,11 +288,7 @@ fn raw_entries_are_not_clipped() {
     use crate::nets::obs_norm::{OBS_BOUND, OBS_CLIP};
     let spec = plane(Some(4));
     let l = spec.layout();
-    let make = |norm| {
-        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
-        config.saver.obs_norm = norm;
-        Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap()
-    };
+    let make = plane_saver;
     // Column j: U(−1, 1) + 50 for the speeds (spread 0.58, as p's), j elsewhere.
     let mut batch = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
     for row in batch.obs.chunks_exact_mut(6) {
