@@ -25,8 +25,8 @@ bin=${SAVER_BIN:-target/release/saver}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 
-# "… N steps, U updates in T s (X steps/s)…" -> X
-rate() { sed -n 's/.* in \([0-9.]*\) s (\([0-9]*\) steps\/s).*/\2/p' | head -1; }
+# "… N steps, U updates in T s of training (X steps/s)…" -> X
+rate() { sed -n 's/.* in \([0-9.]*\) s of training (\([0-9]*\) steps\/s).*/\2/p' | head -1; }
 len() { sed -n 's/.*mean episode length (last 100): \([0-9.]*\).*/\1/p' | head -1; }
 
 echo "== SB3 A2C, angle d=$dim, $steps steps"

@@ -30,6 +30,12 @@ pub struct TrainerOutcome {
     pub steps: u64,
     /// Wall seconds of training.
     pub wall_s: f64,
+    /// Wall seconds of training in this process (`wall_s` less a resumed run's earlier
+    /// processes).
+    pub own_wall_s: f64,
+    /// Seconds of `own_wall_s` in the algorithm's updates (the rest: waiting for
+    /// rollouts, publishing weights, checkpoints).
+    pub update_s: f64,
     /// The final checkpoint.
     pub checkpoint: PathBuf,
     /// metrics.csv.
@@ -175,6 +181,7 @@ impl Trainer {
         let mut stale_dropped = 0u64;
         let mut interrupted = wait.is_err();
         let start = Instant::now();
+        let mut update_s = 0.0;
         // Training time before this process: rates go on across a resume.
         let wall_before = c.wall_ms as f64 / 1000.0;
         while !interrupted && c.steps < config.steps {
@@ -197,8 +204,9 @@ impl Trainer {
             // wait for one).
             let update_start = std::time::Instant::now();
             let updated = self.algo.update(&batch);
-            ::metrics::histogram!("saver_update_seconds")
-                .record(update_start.elapsed().as_secs_f64());
+            let took = update_start.elapsed().as_secs_f64();
+            update_s += took;
+            ::metrics::histogram!("saver_update_seconds").record(took);
             let stats = match updated {
                 Ok(stats) => Some(stats),
                 Err(CoreError::NonFinite(why)) => {
@@ -258,7 +266,8 @@ impl Trainer {
                 self.files.evaluate(c.steps, self.hub.latest())?;
             }
         }
-        c.wall_ms = ((wall_before + start.elapsed().as_secs_f64()) * 1000.0).round() as u64;
+        let own_wall_s = start.elapsed().as_secs_f64();
+        c.wall_ms = ((wall_before + own_wall_s) * 1000.0).round() as u64;
         save_to(self.algo.as_ref(), &c, &actors, &window)?;
         self.files.save_newest(&self.hub.latest())?;
         if c.version > 0 {
@@ -268,6 +277,8 @@ impl Trainer {
             version: c.version,
             steps: c.steps,
             wall_s: c.wall_ms as f64 / 1000.0,
+            own_wall_s,
+            update_s,
             checkpoint,
             metrics: run_dir.join("metrics.csv"),
             mean_ep_len_100: window.mean_all(),

@@ -309,6 +309,17 @@ pub fn train_with(
     }
 }
 
+/// Where this process's training time went: the updates' share, the rest waiting for
+/// rollouts (the actors' env steps and transfers), publishing weights and checkpoints.
+fn time_split(o: &TrainerOutcome) -> String {
+    let share = 100.0 * o.update_s / o.own_wall_s.max(1e-9);
+    format!(
+        "The learner's updates took {:.1} s of {:.1} s ({share:.0} %); the rest it waited for \
+         rollouts, published weights and saved checkpoints",
+        o.update_s, o.own_wall_s
+    )
+}
+
 /// Prints the run's summary and where its outputs went.
 pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
     let len = o
@@ -325,6 +336,7 @@ pub fn report(config: &RunConfig, o: &TrainerOutcome, out: &Path) {
         o.steps as f64 / o.wall_s.max(1e-9),
         if o.interrupted { ", stopped early" } else { "" }
     );
+    crate::out!("{}", time_split(o));
     crate::out!("Outputs in {}:", out.display());
     crate::out!("  config      {}", out.join("config.toml").display());
     crate::out!("  metrics     {}", o.metrics.display());

@@ -100,6 +100,21 @@ fn a_train_run_leaves_config_metrics_plot_and_checkpoint() {
     let o = saver(&["train", "--steps", "60000", "--out", run.to_str().unwrap()]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
+    // Where the training time went: the updates' seconds and share of it.
+    let split = t
+        .lines()
+        .find(|l| l.starts_with("The learner's updates took "))
+        .unwrap_or_else(|| panic!("no time split in {t}"));
+    let share: f64 = split
+        .split(" s (")
+        .nth(1)
+        .unwrap()
+        .split(" %")
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(share > 0.0 && share <= 100.0, "{split}");
     for f in [
         "config.toml",
         "metrics.csv",
