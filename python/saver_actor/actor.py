@@ -150,7 +150,7 @@ class _Weights:
 
 
 # Seconds _end waits for a cancelled stream's reader thread to end.
-READER_JOIN_S = 60.0
+READER_JOIN_S = 10.0
 
 
 def _end(call, thread: threading.Thread) -> None:
@@ -161,9 +161,7 @@ def _end(call, thread: threading.Thread) -> None:
     its run finished, hung in grpc's _Rendezvous.__del__)."""
     call.cancel()
     if thread is not threading.current_thread():
-        # Bounded, so that a reader grpc never wakes cannot hang the actor; generous, as
-        # the reader needs the GIL and a core to see the cancel (a test saw one still
-        # running after 10 s with 2 cores under a load of ~15 processes).
+        # Bounded, so that a reader grpc never wakes cannot hang the actor.
         thread.join(timeout=READER_JOIN_S)
         if thread.is_alive():
             warnings.warn(f"{thread.name}: the stream's reader is still running {READER_JOIN_S:.0f} s after its "
@@ -222,10 +220,18 @@ class _Rollouts:
                 continue
 
     def close(self):
-        try:
-            self.q.put_nowait(None)
-        except queue.Full:
-            pass
+        # The end marker must reach grpc's request thread, which may be waiting in
+        # _requests for the next rollout: a full queue (the learner stopped reading)
+        # gives up its unsent rollouts for it, else that thread would wait forever.
+        while True:
+            try:
+                self.q.put_nowait(None)
+                break
+            except queue.Full:
+                try:
+                    self.q.get_nowait()
+                except queue.Empty:
+                    pass
         _end(self.call, self.thread)
 
 

@@ -316,8 +316,12 @@ def test_token_and_tls_as_for_the_rust_actor():
         s = Actor(make_env, decl, Connection(url, token="s3cret-token-for-the-test", ca=ca), n_envs=2,
                   give_up=30).run()
         assert s.steps >= 3200 and s.rollouts >= 3200 // 16, s
-        # The stream readers have ended with the run: no daemon thread is left for
+        # The stream threads end with the run: no daemon thread is left for
         # interpreter exit to freeze inside a call's lock.
+        # grpc's request thread ends once it is scheduled after the end marker (at a
+        # load of 14 processes it was seen still waking when run() returned).
+        for t in set(threading.enumerate()) - before:
+            t.join(timeout=10)
         left = [t for t in set(threading.enumerate()) - before if t.is_alive()]
         # Where a reader is left, where it is stuck (for the next diagnosis).
         frames = sys._current_frames()
