@@ -6,7 +6,8 @@ Rust actors' policies by tests/python/test_saver_actor.py (through `saver act`).
 gaussian-mlp (A2C, SAVER, PPO): mu = MLP(x) with x = obs, or
 clip((obs - agent.obs_mean) / agent.obs_std, -b, b) when the weights carry that
 observation normaliser (PPO's ppo.obs_norm, SAVER's saver.obs_norm), b = 10, or each
-entry's agent.obs_clip where the weights hold it (inf: the entry is not clipped) (the run's hidden widths, 256-128-64 by
+entry's agent.obs_clip where the weights hold it (inf: the entry is not clipped). The
+MLP has the run's hidden widths (256-128-64 by
 default, ReLU; as many agent.l{i} layers as the weights hold), bounded by
 mu_bound * tanh when mu_bound is finite; log_std = clamp(agent.log_std); continuous
 action = mu + exp(log_std) * N(0, 1); a choice ~ softmax(logits) as a one-hot.
