@@ -9,6 +9,8 @@ use plotters::prelude::*;
 use saver_core::config::RunConfig;
 use saver_core::link::{ActorSettings, PolicyWeights};
 use saver_core::rng::{rng_for, streams};
+use saver_proto::NamedTensor;
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -166,16 +168,14 @@ pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
     })?;
     let config =
         RunConfig::from_toml(&text).with_context(|| format!("reading {}", cfg.display()))?;
+    let settings = ActorSettings::of(&config);
     let policy = source.join(saver_learner::best::POLICY_FILE);
     if policy.is_file() {
-        let (_, weights) = load_file(&policy)?;
-        return Ok((ActorSettings::of(&config), weights));
+        let (tensors, meta) = read_safetensors(&policy, "")?;
+        return Ok((settings, weights_of(tensors, &meta)));
     }
     let ckpt = source.join("checkpoint.safetensors");
-    let bytes = std::fs::read(&ckpt)
-        .with_context(|| format!("reading {} (has the run saved one yet?)", ckpt.display()))?;
-    let (tensors, meta) =
-        saver_proto::decode(&bytes).with_context(|| ckpt.display().to_string())?;
+    let (tensors, meta) = read_safetensors(&ckpt, " (has the run saved one yet?)")?;
     if let Some(t) = tensors.iter().find(|t| t.name.contains(".obs_norm.")) {
         bail!(
             "{}: the run's agent reads normalised observations ({}), whose mean and scale \
@@ -186,36 +186,41 @@ pub fn load(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
             saver_learner::best::POLICY_FILE
         );
     }
-    let version = meta
-        .get("version")
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0);
-    let tensors = tensors
+    let agent = tensors
         .into_iter()
         .filter(|t| t.name.starts_with("agent."))
         .collect();
-    Ok((
-        ActorSettings::of(&config),
-        Arc::new(PolicyWeights { version, tensors }),
-    ))
+    Ok((settings, weights_of(agent, &meta)))
 }
 
 /// The settings (from its metadata) and weights of a self-describing weights file.
 fn load_file(source: &Path) -> Result<(ActorSettings, Arc<PolicyWeights>)> {
-    let bytes = std::fs::read(source).with_context(|| format!("reading {}", source.display()))?;
-    let (tensors, meta) =
-        saver_proto::decode(&bytes).with_context(|| source.display().to_string())?;
+    let (tensors, meta) = read_safetensors(source, "")?;
     let settings = saver_core::link::settings_from_metadata(&meta).with_context(|| {
         format!(
             "{}: not a self-describing SAVER weights file",
             source.display()
         )
     })?;
+    Ok((settings, weights_of(tensors, &meta)))
+}
+
+/// The tensors and metadata of the safetensors file `path` (`hint` follows a read error).
+fn read_safetensors(
+    path: &Path,
+    hint: &str,
+) -> Result<(Vec<NamedTensor>, HashMap<String, String>)> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}{hint}", path.display()))?;
+    saver_proto::decode(&bytes).with_context(|| path.display().to_string())
+}
+
+/// Weights of `tensors` at the version the metadata names (0 where it names none).
+fn weights_of(tensors: Vec<NamedTensor>, meta: &HashMap<String, String>) -> Arc<PolicyWeights> {
     let version = meta
         .get("version")
         .and_then(|v| v.parse().ok())
         .unwrap_or(0);
-    Ok((settings, Arc::new(PolicyWeights { version, tensors })))
+    Arc::new(PolicyWeights { version, tensors })
 }
 
 /// The command that plays a custom env's policy file (only the env's own Python code

@@ -280,21 +280,9 @@ fn eval_of_a_run_folder_reads_through_its_normaliser() {
     let dir = temp_dir("eval-norm");
     let run = dir.join("run");
     let r = run.to_str().unwrap();
-    let o = saver(&[
-        "train",
-        "--algo",
-        "ppo",
-        "--env",
-        "angle",
-        "--dim",
-        "4",
-        "--ppo-obs-norm",
-        "true",
-        "--steps",
-        "8192",
-        "--out",
-        r,
-    ]);
+    let train = "train --algo ppo --env angle --dim 4 --ppo-obs-norm true --steps 8192 --out";
+    let args: Vec<&str> = train.split(' ').chain([r]).collect();
+    let o = saver(&args);
     assert!(o.status.success(), "{}", text(&o));
     let score = |source: &str| {
         let o = saver(&[

@@ -161,11 +161,8 @@ fn aligned_scales_the_position_and_goal_alone() {
     assert_eq!(aligned_entries(&plane(None)), vec![0, 1]);
     // A goal that overlaps p adds nothing twice.
     assert_eq!(aligned_entries(&plane(Some(1))), vec![0, 1, 2]);
-    let spec = plane(Some(4));
-    let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
-    config.saver.obs_norm = ObsNorm::Aligned;
-    let l = spec.layout();
-    let mut s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+    let l = plane(Some(4)).layout();
+    let mut s = plane_saver(ObsNorm::Aligned);
     let mut batch = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
     for row in batch.obs.chunks_exact_mut(6) {
         for (j, v) in row.iter_mut().enumerate() {
@@ -233,7 +230,6 @@ fn auto_calls_p_narrow_only_under_a_third_of_the_widest_other_entry() {
 fn auto_reads_p_and_g_scaled_only_where_the_first_batch_finds_p_narrow() {
     let spec = plane(Some(4));
     let l = spec.layout();
-    let make = plane_saver;
     let batch = |p_scale: f32| {
         let mut b = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
         for row in b.obs.chunks_exact_mut(6) {
@@ -248,30 +244,30 @@ fn auto_reads_p_and_g_scaled_only_where_the_first_batch_finds_p_narrow() {
         (find(&t, OBS_MEAN).unwrap(), find(&t, OBS_STD).unwrap())
     };
     let raw = (vec![0.0; 6], vec![1.0; 6]);
-    let mut narrow = make(ObsNorm::Auto);
+    let mut narrow = plane_saver(ObsNorm::Auto);
     assert_eq!(carried(&narrow), raw);
     narrow.update(&batch(0.1)).unwrap();
     let (mean, std) = carried(&narrow);
-    let mut aligned = make(ObsNorm::Aligned);
+    let mut aligned = plane_saver(ObsNorm::Aligned);
     aligned.update(&batch(0.1)).unwrap();
     assert_eq!((mean.clone(), std.clone()), carried(&aligned));
     assert!((std[0] - 0.1 / 3f32.sqrt()).abs() < 0.01, "{std:?}");
     assert!((mean[4] - 4.0).abs() < 0.2, "{mean:?}");
     assert_eq!((mean[2], std[2]), (0.0, 1.0));
-    let mut wide = make(ObsNorm::Auto);
+    let mut wide = plane_saver(ObsNorm::Auto);
     wide.update(&batch(1.0)).unwrap();
     wide.update(&batch(0.1)).unwrap();
     assert_eq!(carried(&wide), raw);
     for s in [&narrow, &wide] {
         let saved = s.save_state().unwrap();
-        let mut fresh = make(ObsNorm::Auto);
+        let mut fresh = plane_saver(ObsNorm::Auto);
         fresh
             .restore_state(&|name: &str| saved.get(name), &saved.numbers)
             .unwrap();
         assert_eq!(carried(&fresh), carried(s));
     }
     let plain = aligned.save_state().unwrap();
-    let err = make(ObsNorm::Auto)
+    let err = plane_saver(ObsNorm::Auto)
         .restore_state(&|name: &str| plain.get(name), &plain.numbers)
         .unwrap_err()
         .to_string();
@@ -288,7 +284,6 @@ fn raw_entries_are_not_clipped() {
     use crate::nets::obs_norm::{OBS_BOUND, OBS_CLIP};
     let spec = plane(Some(4));
     let l = spec.layout();
-    let make = plane_saver;
     // Column j: U(−1, 1) + 50 for the speeds (spread 0.58, as p's), j elsewhere.
     let mut batch = random_batch(&l, 8, 64, 3, 1.0, vec![false; 512]);
     for row in batch.obs.chunks_exact_mut(6) {
@@ -297,9 +292,9 @@ fn raw_entries_are_not_clipped() {
         }
     }
     let (mut auto, mut off, mut aligned) = (
-        make(ObsNorm::Auto),
-        make(ObsNorm::Off),
-        make(ObsNorm::Aligned),
+        plane_saver(ObsNorm::Auto),
+        plane_saver(ObsNorm::Off),
+        plane_saver(ObsNorm::Aligned),
     );
     for _ in 0..2 {
         for s in [&mut auto, &mut off, &mut aligned] {
