@@ -50,7 +50,7 @@ pub struct BenchArgs {
 }
 
 /// Calls `f` repeatedly for about `seconds` (after one warm-up call); mean seconds per call.
-fn time<F: FnMut() -> Result<()>>(seconds: f64, mut f: F) -> Result<f64> {
+pub(crate) fn time<F: FnMut() -> Result<()>>(seconds: f64, mut f: F) -> Result<f64> {
     f()?;
     let start = Instant::now();
     let mut n = 0u32;
@@ -136,9 +136,8 @@ fn pretraining(args: &BenchArgs, peak: f64, threads: usize) -> Result<()> {
     Ok(())
 }
 
-/// A batch of 16 trajectories × `n` steps with random contents of the right shapes.
-fn synthetic_batch(l: &EnvLayout, n: usize, seed: u64) -> Batch {
-    let t = 16;
+/// A batch of `t` trajectories × `n` steps with random contents of the right shapes.
+pub(crate) fn synthetic_batch(l: &EnvLayout, t: usize, n: usize, seed: u64) -> Batch {
     let b = t * n;
     let mut rng = rng_for(seed, 9);
     let mut u = |len: usize| {
@@ -196,7 +195,7 @@ fn time_update(
     a.set_threads(threads);
     a.set_grad_path(path);
     // 16 actors x the rollout (PPO on angle: 128, 32 minibatches of 64 a pass).
-    let batch = synthetic_batch(&spec.layout(), config.rollout as usize, d as u64);
+    let batch = synthetic_batch(&spec.layout(), 16, config.rollout as usize, d as u64);
     let s = time(seconds, || {
         a.update(&batch)?;
         Ok(())
@@ -310,6 +309,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             }
         }
     }
+    crate::bench_custom::custom_env_updates(args.seconds)?;
     pretraining(&args, peak, threads)?;
     crate::out!("\nrollout + update cycle (16 actors x 8 steps, in-process, angle):");
     let dev = Device::Cpu;

@@ -6,6 +6,7 @@
 pub mod access;
 pub mod act;
 pub mod bench;
+mod bench_custom;
 pub mod bench_services;
 pub mod clients;
 pub mod config;

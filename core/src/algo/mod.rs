@@ -8,6 +8,7 @@ mod a2c;
 mod algorithm;
 mod dense;
 pub(crate) mod fused;
+mod host_mlp;
 pub mod per_dim;
 mod ppo;
 mod qnet_grad;

@@ -9,6 +9,7 @@ pub(super) mod defaults;
 mod env_return;
 mod epochs;
 pub(super) mod grad;
+mod host_step;
 mod obs_scale;
 mod pcpn_tune;
 pub mod signal;
@@ -342,8 +343,19 @@ impl Saver {
             return Ok(None);
         };
         let (b, d, k) = (batch.len(), self.layout.aligned_dim, self.cfg.quantiles);
-        let taus = uniform01(&mut self.rng, d * b * k);
-        Ok(Some(t.grads(x, &batch.state_delta, &taus)?))
+        let rows = self.cfg.pcpn_tune_rows;
+        if rows == 0 || rows >= b {
+            let taus = uniform01(&mut self.rng, d * b * k);
+            return Ok(Some(t.grads(x, &batch.state_delta, &taus)?));
+        }
+        // `rows` distinct rows, in batch order.
+        let mut idx = rand::seq::index::sample(&mut self.rng, b, rows).into_vec();
+        idx.sort_unstable();
+        let at: Vec<u32> = idx.iter().map(|&i| i as u32).collect();
+        let x = x.index_select(&Tensor::from_vec(at, rows, &self.dev)?, 0)?;
+        let delta = crate::algo::gather_rows(&batch.state_delta, &idx, d);
+        let taus = uniform01(&mut self.rng, d * rows * k);
+        Ok(Some(t.grads(&x, &delta, &taus)?))
     }
 
     /// Applies the PCPN's step; its loss.

@@ -607,6 +607,7 @@ fn loss_config(k: usize, kappa: Option<f64>) -> crate::config::SaverConfig {
         mu_raw_penalty_entries: Vec::new(),
         target: crate::config::DeltaTarget::Observed,
         pcpn_tune_lr: 0.0,
+        pcpn_tune_rows: 0,
         epochs: 1,
         minibatch_size: 0,
         gae_lambda: 1.0,

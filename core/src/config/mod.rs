@@ -201,6 +201,7 @@ impl RunConfig {
                 mu_raw_penalty_entries: Vec::new(),
                 target: DeltaTarget::Observed,
                 pcpn_tune_lr: 0.0,
+                pcpn_tune_rows: 0,
                 epochs: 1,
                 minibatch_size: 0,
                 gae_lambda: 1.0,

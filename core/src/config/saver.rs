@@ -49,6 +49,11 @@ pub struct SaverConfig {
     /// docs/ALGORITHM.md §7.1). 0: the PCPN stays frozen (the paper).
     #[serde(default)]
     pub pcpn_tune_lr: f64,
+    /// Rows of each update's batch that the PCPN's training step of
+    /// [`Self::pcpn_tune_lr`] reads, drawn at random without replacement; 0 (or the
+    /// batch or more): every row.
+    #[serde(default)]
+    pub pcpn_tune_rows: usize,
     /// Passes over each batch, each in shuffled minibatches of [`Self::minibatch_size`]
     /// steps, every minibatch one optimiser step (docs/ALGORITHM.md §7.1). 1 with one
     /// minibatch: one step per batch (the paper).

@@ -146,6 +146,8 @@ pub struct SaverSettings {
     pub saver_target: Option<DeltaTarget>,
     #[arg(long, allow_hyphen_values = true, help = help("SAVER: learning rate of the PCPN's own training on the policy's steps during the run (one step per update; 0: frozen, the paper)", "saver.pcpn_tune_lr"))]
     pub pcpn_tune_lr: Option<f64>,
+    #[arg(long, value_name = "N", help = help("SAVER: rows of each batch, drawn at random, that the PCPN's training step of --pcpn-tune-lr reads (0: every row)", "saver.pcpn_tune_rows"))]
+    pub pcpn_tune_rows: Option<usize>,
     #[arg(id = "saver_epochs", value_name = "N", long = "saver-epochs", help = help("SAVER: passes over each batch, each in shuffled minibatches of --saver-minibatch-size steps (one optimiser step each)", "saver.epochs"))]
     #[serde(rename = "epochs")]
     pub saver_epochs: Option<usize>,

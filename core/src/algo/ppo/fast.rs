@@ -9,97 +9,12 @@
 
 use super::minibatch::{Minibatch, Totals};
 use crate::algo::check_finite;
-use crate::algo::dense::matmul;
+use crate::algo::host_mlp::{share, value, HostMlp, MlpScratch};
 use crate::config::{HeadConfig, PpoConfig};
 use crate::nets::Linear;
 use crate::optim::{join_if, HostState};
 use crate::Result;
 use candle_core::{Tensor, TensorId};
-
-/// One MLP's layers on the host, borrowed from the optimiser's [`HostState`]: (weight
-/// [in, out] row-major, bias [out], in, out).
-struct HostMlp<'a> {
-    layers: Vec<(&'a [f32], &'a [f32], usize, usize)>,
-}
-
-impl<'a> HostMlp<'a> {
-    fn of(layers: &[&Linear], h: &'a HostState) -> Result<Self> {
-        let mut out = Vec::with_capacity(layers.len());
-        for l in layers {
-            let (i, o) = l.w.dims2()?;
-            out.push((value(h, &l.w)?, value(h, &l.b)?, i, o));
-        }
-        Ok(Self { layers: out })
-    }
-
-    /// Every layer's output for `x` [n, in] into `s.acts`: ReLU on all but the last,
-    /// which is linear.
-    fn forward(&self, x: &[f32], n: usize, s: &mut MlpScratch) {
-        s.acts.resize_with(self.layers.len(), Vec::new);
-        for (k, (w, b, i, o)) in self.layers.iter().enumerate() {
-            let (done, rest) = s.acts.split_at_mut(k);
-            let input = if k == 0 { x } else { &done[k - 1] };
-            let y = &mut rest[0];
-            // gemm writes every element (it never reads dst), so no zeroing.
-            y.resize(n * o, 0.0);
-            matmul(y, input, w, (n, *i, *o), (false, false));
-            let last = k + 1 == self.layers.len();
-            for row in y.chunks_exact_mut(*o) {
-                for (v, bias) in row.iter_mut().zip(b.iter()) {
-                    *v += bias;
-                    if !last && *v < 0.0 {
-                        *v = 0.0;
-                    }
-                }
-            }
-        }
-    }
-
-    /// Each layer's (dW, db) into `s.grads` from the gradient of the last layer's
-    /// output in `s.dy` [n, out], given the input `x` and the activations of
-    /// [`HostMlp::forward`] in `s.acts`. Leaves `s.dy` and `s.dx` as scratch.
-    fn backward(&self, x: &[f32], n: usize, s: &mut MlpScratch) {
-        s.grads.resize_with(self.layers.len(), Default::default);
-        for k in (0..self.layers.len()).rev() {
-            let (w, _, i, o) = &self.layers[k];
-            let input = if k == 0 { x } else { &s.acts[k - 1] };
-            let (dw, db) = &mut s.grads[k];
-            dw.resize(i * o, 0.0);
-            matmul(dw, input, &s.dy, (*i, n, *o), (true, false));
-            db.clear();
-            db.resize(*o, 0.0);
-            for row in s.dy.chunks_exact(*o) {
-                for (sum, v) in db.iter_mut().zip(row) {
-                    *sum += v;
-                }
-            }
-            if k > 0 {
-                s.dx.resize(n * i, 0.0);
-                matmul(&mut s.dx, &s.dy, w, (n, *o, *i), (false, true));
-                // Through the ReLU that made the input: no gradient where it was cut
-                // (a select, not a branch, so that the loop vectorises).
-                for (g, a) in s.dx.iter_mut().zip(input) {
-                    *g = if *a > 0.0 { *g } else { 0.0 };
-                }
-                std::mem::swap(&mut s.dy, &mut s.dx);
-            }
-        }
-    }
-}
-
-/// One MLP's buffers for [`HostMlp::forward`] and [`HostMlp::backward`], kept across
-/// the minibatches of an update: each step writes the same memory (no allocation, no
-/// zeroing, and addresses that stay in cache beside the optimiser's state).
-#[derive(Default)]
-struct MlpScratch {
-    /// Each layer's output [n, out].
-    acts: Vec<Vec<f32>>,
-    /// Each layer's (dW [in, out], db [out]).
-    grads: Vec<(Vec<f32>, Vec<f32>)>,
-    /// The gradient of the layer output being propagated back, and of its input.
-    dy: Vec<f32>,
-    dx: Vec<f32>,
-}
 
 /// The agent's buffers: its MLP's and the log σ gradient.
 #[derive(Default)]
@@ -113,24 +28,6 @@ struct AgentScratch {
 pub(super) struct Scratch {
     agent: AgentScratch,
     critic: MlpScratch,
-}
-
-/// The optimiser's current value of the variable `var`.
-fn value<'a>(h: &'a HostState, var: &Tensor) -> Result<&'a [f32]> {
-    h.value(var)
-        .ok_or_else(|| crate::CoreError::Data("PPO's optimiser does not train a layer".into()))
-}
-
-/// candle's gradient share of `x` in max(x, y) or min(x, y) when `x` is the one taken:
-/// 1, ½ on a tie, 0 when the other one is taken.
-fn share(taken: bool, tie: bool) -> f32 {
-    if tie {
-        0.5
-    } else if taken {
-        1.0
-    } else {
-        0.0
-    }
 }
 
 /// The networks a step trains, by reference, and the loss settings.

@@ -234,12 +234,26 @@ impl EnvReturn {
             }
             Ok(sq.sqrt())
         };
-        let (v, r) = (norm(vector)?, norm(env)?);
-        Ok(if r > 0.0 {
-            (self.weight * v / r) as f32
+        Ok(self.scale_of(norm(vector)?, norm(env)?))
+    }
+
+    /// [`Self::scale`] from the two norms |g_v| and |g_r| (the host step's).
+    pub(super) fn scale_of(&self, vector: f64, env: f64) -> f32 {
+        if env > 0.0 {
+            (self.weight * vector / env) as f32
         } else {
             0.0
-        })
+        }
+    }
+
+    /// ε of the clip (0: none).
+    pub(super) fn clip_eps(&self) -> f64 {
+        self.clip
+    }
+
+    /// The scalar critic's layers, input to output.
+    pub(super) fn critic_layers(&self) -> Vec<&crate::nets::Linear> {
+        self.critic.layers().iter().collect()
     }
 
     /// Whether the term clips, and so needs the log μ(a|o) of the policy that acted.

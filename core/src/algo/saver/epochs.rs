@@ -7,6 +7,7 @@
 //! `saver.target_kl` the passes stop early once a minibatch's policy has moved that far
 //! from the one that acted (approximate KL), as PPO's early stop.
 
+use super::host_step::HostScratch;
 use super::{Losses, Saver, StepRows};
 use crate::algo::{gather_rows, Algorithm, UpdateStats};
 use crate::rollout::Batch;
@@ -31,18 +32,19 @@ impl Saver {
     /// signal's dL/dμ the first pass's (each row once).
     fn epochs(&mut self, batch: &Batch) -> Result<UpdateStats> {
         let (b, m) = (batch.len(), self.cfg.minibatches(batch.len()));
-        let (o, d, mu_dim, a) = (
-            self.layout.obs_dim,
-            self.layout.aligned_dim,
-            self.layout.mu_dim(),
-            self.layout.action_dim(),
-        );
+        let mu_dim = self.layout.mu_dim();
         let s = self.start(batch)?;
         let tune = self.tune_grads(&s.fwd.x, batch)?;
         let mut dmu = Some(vec![0f32; b * mu_dim]);
         let mut losses = Vec::with_capacity(self.cfg.epochs * m);
         let mut order: Vec<usize> = (0..b).collect();
         let behaviour = self.behaviour(batch, &s)?;
+        // The host step reads and writes the optimiser's host copy of the weights,
+        // written back after the passes (host_step.rs).
+        let mut host = match self.host_path() {
+            true => Some((self.opt.host_state()?, HostScratch::default())),
+            false => None,
+        };
         'passes: for epoch in 0..self.cfg.epochs {
             // One minibatch is the whole batch: its order changes nothing but the bits.
             if m > 1 {
@@ -51,35 +53,23 @@ impl Saver {
             for j in 0..m {
                 // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
                 let idx = &order[j * b / m..(j + 1) * b / m];
-                let rows = |data: &[f32], w: usize| gather_rows(data, idx, w);
-                let n = idx.len();
-                let fwd =
-                    self.forward(Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?)?;
-                if let Some(logp_b) = behaviour.as_ref().filter(|_| self.cfg.target_kl > 0.0) {
-                    let first = epoch == 0 && j == 0;
-                    if !first
-                        && self.approx_kl(&fwd, &rows(&batch.actions, a), &rows(logp_b, 1))?
-                            > self.cfg.target_kl
-                    {
-                        if epoch == 0 {
-                            dmu = None; // the signal's dL/dμ would miss rows
-                        }
-                        break 'passes;
-                    }
-                }
-                let (target, adv) = (rows(&s.target, d), rows(&s.adv_host, d));
-                let step_rows = StepRows {
-                    fwd: &fwd,
-                    returns: Tensor::from_vec(rows(&s.returns_host, d), (n, d), &self.dev)?,
-                    target: &target,
-                    adv: &adv,
-                    env: self.env_rows(&s, batch, Some(idx), behaviour.as_deref())?,
+                let kl_stop = self.cfg.target_kl > 0.0 && !(epoch == 0 && j == 0);
+                let behaviour = behaviour.as_deref();
+                let step = match host.as_mut() {
+                    Some((h, scratch)) => self
+                        .host_minibatch(h, scratch, batch, &s, idx, behaviour, kl_stop)?
+                        .map(|(l, part)| (l, Some(part))),
+                    None => self.candle_minibatch(batch, &s, idx, behaviour, kl_stop)?,
                 };
-                let step = self.step_loss(&step_rows)?;
-                let (l, step_dmu) = self.take_step(step)?;
+                let Some((l, part)) = step else {
+                    if epoch == 0 {
+                        dmu = None; // the signal's dL/dμ would miss rows
+                    }
+                    break 'passes;
+                };
                 losses.push(l);
                 if epoch == 0 {
-                    match (&mut dmu, step_dmu) {
+                    match (&mut dmu, part) {
                         (Some(all), Some(part)) => {
                             for (&i, row) in idx.iter().zip(part.chunks_exact(mu_dim)) {
                                 all[i * mu_dim..(i + 1) * mu_dim].copy_from_slice(row);
@@ -90,8 +80,49 @@ impl Saver {
                 }
             }
         }
+        if let Some((h, _)) = host {
+            self.opt.commit_host(h)?;
+        }
         let tune_loss = self.apply_tune(tune)?;
         self.finish(batch, s, dmu, Losses::mean(&losses), tune_loss)
+    }
+
+    /// One minibatch step through candle (step.rs) on the rows `idx` of `batch`, whose
+    /// update started with `s`: its losses and (fast path) the PCPN term's dL/dμ, or
+    /// `None` where `kl_stop` asks for the KL check and it holds (nothing changed).
+    fn candle_minibatch(
+        &mut self,
+        batch: &Batch,
+        s: &super::Start,
+        idx: &[usize],
+        behaviour: Option<&[f32]>,
+        kl_stop: bool,
+    ) -> Result<Option<(Losses, Option<Vec<f32>>)>> {
+        let rows = |data: &[f32], w: usize| gather_rows(data, idx, w);
+        let (n, o, d, a) = (
+            idx.len(),
+            self.layout.obs_dim,
+            self.layout.aligned_dim,
+            self.layout.action_dim(),
+        );
+        let fwd = self.forward(Tensor::from_vec(rows(&batch.obs, o), (n, o), &self.dev)?)?;
+        if let Some(logp_b) = behaviour.filter(|_| kl_stop) {
+            if self.approx_kl(&fwd, &rows(&batch.actions, a), &rows(logp_b, 1))?
+                > self.cfg.target_kl
+            {
+                return Ok(None);
+            }
+        }
+        let (target, adv) = (rows(&s.target, d), rows(&s.adv_host, d));
+        let step_rows = StepRows {
+            fwd: &fwd,
+            returns: Tensor::from_vec(rows(&s.returns_host, d), (n, d), &self.dev)?,
+            target: &target,
+            adv: &adv,
+            env: self.env_rows(s, batch, Some(idx), behaviour)?,
+        };
+        let step = self.step_loss(&step_rows)?;
+        Ok(Some(self.take_step(step)?))
     }
 
     /// KL(behaviour ‖ current) over some steps, approximated as PPO's diagnostics do:
@@ -170,6 +201,73 @@ mod tests {
         for k in ["actor_loss", "critic_loss", "grad_norm"] {
             let (x, y) = (get(&a, k), get(&b, k));
             assert!((x - y).abs() <= 1e-5 * x.abs().max(1e-6), "{k}: {x} vs {y}");
+        }
+    }
+
+    /// The host step (host_step.rs) against the step through candle's autograd (the
+    /// PCPN's gradient by autograd too) at a custom env's defaults: observations read
+    /// through `auto`'s scale, the env term clipped at 0.2, the saturation wall, the
+    /// PCPN's own step on a draw of rows, two passes of minibatches of 5 steps, and the
+    /// KL stop on and off. Over three updates every saved tensor (agent, both critics,
+    /// the optimiser's slots, the tuned PCPN) and every statistic agree to float
+    /// rounding; the wall and the clip act (μ_raw beyond ±2, rows past the clip).
+    #[test]
+    fn the_host_step_takes_the_reference_step() {
+        use crate::algo::tests::plane_spec;
+        use crate::algo::GradPath;
+        let spec = plane_spec(1.0, None);
+        let l = spec.layout();
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+        (config.saver.minibatch_size, config.saver.pcpn_tune_rows) = (5, 7);
+        // Raw means beyond the wall's ±2 on some rows: a large first-layer input.
+        let mut batch = random_batch(&l, 4, 6, 9, 1.0, vec![false; 24]);
+        for (i, o) in batch.obs.iter_mut().enumerate() {
+            *o *= if i % 6 == 2 { 40.0 } else { 1.0 };
+        }
+        batch.env_reward = (0..24).map(|i| -0.05 * (i % 5) as f32).collect();
+        for target_kl in [0.0, 0.02] {
+            config.saver.target_kl = target_kl;
+            let run = |path| {
+                let mut s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+                s.set_grad_path(path);
+                assert_eq!(s.host_path(), path == GradPath::Fast);
+                let stats: Vec<_> = (0..3).map(|_| s.update(&batch).unwrap().values).collect();
+                let state = s.save_state().unwrap().tensors;
+                let as_f64 = |x: &Tensor| {
+                    let x = x.to_dtype(DType::F64).unwrap();
+                    x.flatten_all().unwrap().to_vec1::<f64>().unwrap()
+                };
+                let saved: Vec<_> = state.iter().map(|(n, x)| (n.clone(), as_f64(x))).collect();
+                (saved, stats, s.optimizer_steps())
+            };
+            let (host, host_stats, host_steps) = run(GradPath::Fast);
+            let (reference, ref_stats, ref_steps) = run(GradPath::Reference);
+            assert_eq!(host_steps, ref_steps);
+            for ((name, x), (_, y)) in host.iter().zip(&reference) {
+                let scale = y.iter().fold(1e-3f64, |m, v| m.max(v.abs()));
+                let worst = x
+                    .iter()
+                    .zip(y)
+                    .map(|(p, q)| (p - q).abs())
+                    .fold(0f64, f64::max);
+                assert!(
+                    worst <= 2e-4 * scale,
+                    "{name}: differs by {worst:e} (scale {scale})"
+                );
+            }
+            for (a, b) in host_stats.iter().flatten().zip(ref_stats.iter().flatten()) {
+                assert_eq!(a.0, b.0);
+                let tol = 1e-3 * a.1.abs().max(b.1.abs()).max(1e-4);
+                assert!((a.1 - b.1).abs() <= tol, "{}: {} vs {}", a.0, a.1, b.1);
+            }
+            // The env term pushed, and μ passed tanh(2) = 0.964 (the wall's ±2 on μ_raw).
+            let most = |k: &str| {
+                let v = host_stats.iter().flatten().filter(|v| v.0 == k);
+                v.fold(0f32, |m, v| m.max(v.1))
+            };
+            assert!(most("env_pg_scale") > 0.0, "{host_stats:?}");
+            assert!(most("mu_abs_max") > 0.964, "{host_stats:?}");
+            eprintln!("target_kl {target_kl}: {host_steps} optimiser steps");
         }
     }
 

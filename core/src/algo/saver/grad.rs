@@ -12,6 +12,7 @@
 //! file, is the reference through candle autograd that a test holds this path to (and
 //! the path on devices other than the CPU).
 
+use crate::algo::dense::matmul;
 use crate::algo::fused::{self, Heads};
 use crate::config::SaverConfig;
 use crate::loss::{monotonic_penalty, quantile_loss};
@@ -73,6 +74,8 @@ pub struct PcpnGrad {
     w1t: Tensor,
     /// The per-dimension heads, row-major on the host.
     heads: Heads,
+    /// The trunk on the host, row-major: W0 [I, 256], b0, W1 [256, d·128], b1.
+    trunk: [Vec<f32>; 4],
     /// Threads of the fused blocks (0: one per core).
     threads: usize,
 }
@@ -111,6 +114,12 @@ impl PcpnGrad {
             w0t: pcpn.l0.w.t()?.contiguous()?,
             w1t: pcpn.l1.w.t()?.contiguous()?,
             heads: Heads::of(&pcpn)?,
+            trunk: [
+                host(&pcpn.l0.w)?,
+                host(&pcpn.l0.b)?,
+                host(&pcpn.l1.w)?,
+                host(&pcpn.l1.b)?,
+            ],
             pcpn,
             threads: 0,
         })
@@ -172,6 +181,73 @@ impl PcpnGrad {
             mon_loss: out.mon_loss,
             dx,
         })
+    }
+}
+
+/// The buffers of [`PcpnGrad::input_grad_host`], kept across an update's minibatches.
+#[derive(Default)]
+pub(super) struct TrunkScratch {
+    h: Vec<f32>,
+    z: Vec<f32>,
+    dh: Vec<f32>,
+    /// dL/dx [n, I] of the last call.
+    pub(super) dx: Vec<f32>,
+}
+
+/// `y` [n, o] = x·W + b for `x` [n, i], ReLU after.
+fn relu_layer(y: &mut Vec<f32>, x: &[f32], w: &[f32], b: &[f32], (n, i, o): (usize, usize, usize)) {
+    y.resize(n * o, 0.0);
+    matmul(y, x, w, (n, i, o), (false, false));
+    for row in y.chunks_exact_mut(o) {
+        for (v, bias) in row.iter_mut().zip(b) {
+            *v = (*v + bias).max(0.0);
+        }
+    }
+}
+
+/// `g` [n, o] ← g ⊙ 1[a > 0] (through the ReLU whose output was `a`).
+fn relu_back(g: &mut [f32], a: &[f32]) {
+    for (g, a) in g.iter_mut().zip(a) {
+        *g = if *a > 0.0 { *g } else { 0.0 };
+    }
+}
+
+impl PcpnGrad {
+    /// [`PcpnGrad::input_grad`] on host rows `x` [n, I] (row-major), the trunk's
+    /// matmuls by gemm: (L_a, L_mon), with dL/dx in `s.dx`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn input_grad_host(
+        &self,
+        x: &[f32],
+        n: usize,
+        state_delta: &[f32],
+        advantage: &[f32],
+        taus: &[f32],
+        cfg: &SaverConfig,
+        s: &mut TrunkScratch,
+    ) -> (f32, f32) {
+        let [w0, b0, w1, b1] = &self.trunk;
+        let (i, hid, wide) = (x.len() / n.max(1), b0.len(), b1.len());
+        relu_layer(&mut s.h, x, w0, b0, (n, i, hid));
+        relu_layer(&mut s.z, &s.h, w1, b1, (n, hid, wide));
+        let batch = fused::Inputs {
+            z: &s.z,
+            state_delta,
+            advantage,
+            taus,
+            tau_base: 0.0,
+            b: n,
+            k: taus.len() / (n * self.pcpn.dim),
+            d: self.pcpn.dim,
+        };
+        let mut out = fused::run(&self.heads, &batch, cfg.into(), self.threads, false);
+        relu_back(&mut out.dz, &s.z);
+        s.dh.resize(n * hid, 0.0);
+        matmul(&mut s.dh, &out.dz, w1, (n, wide, hid), (false, true));
+        relu_back(&mut s.dh, &s.h);
+        s.dx.resize(n * i, 0.0);
+        matmul(&mut s.dx, &s.dh, w0, (n, hid, i), (false, true));
+        (out.actor_loss, out.mon_loss)
     }
 }
 

@@ -84,7 +84,7 @@ impl ObsScale {
 
     /// The mean, the scale and, where some entries are read raw, each entry's clip (±10
     /// where scaled, none where raw, so a raw entry reads exactly as under `off`).
-    fn mean_std(&self) -> (Vec<f32>, Vec<f32>, Option<Vec<f32>>) {
+    pub(super) fn mean_std(&self) -> (Vec<f32>, Vec<f32>, Option<Vec<f32>>) {
         let (stats, scaled) = match self {
             Self::Bounds { mean, std } => return (mean.clone(), std.clone(), None),
             Self::Running { stats, scaled } => (stats, scaled),
