@@ -177,18 +177,7 @@ struct Scratch {
 /// module docs. With `weight_grads` the result also holds the heads' gradients (added
 /// in block order, so they too do not depend on the thread count).
 pub fn run(heads: &Heads, x: &Inputs, loss: Loss, threads: usize, weight_grads: bool) -> Fused {
-    let units: Vec<(usize, usize)> = (0..x.d)
-        .flat_map(|j| (0..x.b).step_by(BLOCK).map(move |b0| (j, b0)))
-        .collect();
-    let (b, k, d) = (x.b as f64, x.k as f64, x.d as f64);
-    let job = Job {
-        heads,
-        x,
-        loss,
-        qn: 1.0 / (b * k * d),
-        mn: loss.lambda_mon * 2.0 * k / (b * k * k * d),
-        weight_grads,
-    };
+    let (units, job) = plan(heads, x, loss, weight_grads);
     let threads = threads_for(threads).clamp(1, units.len().max(1));
     let run_of = |part: &[(usize, usize)]| {
         let mut s = Scratch::default();
@@ -211,6 +200,48 @@ pub fn run(heads: &Heads, x: &Inputs, loss: Loss, threads: usize, weight_grads: 
                 .collect()
         })
     };
+    reduce(&job, &units, parts)
+}
+
+/// [`run`] with every unit a task of the rayon pool this is called in, so that a
+/// worker that finishes other work of the pool (`rayon::join`) takes blocks over: the
+/// same bits (the units' results are added in block order).
+pub fn run_in_pool(heads: &Heads, x: &Inputs, loss: Loss, weight_grads: bool) -> Fused {
+    use rayon::prelude::*;
+    let (units, job) = plan(heads, x, loss, weight_grads);
+    let parts: Vec<UnitOut> = units
+        .par_iter()
+        .map_init(Scratch::default, |s, &(j, b0)| unit(&job, j, b0, s))
+        .collect();
+    reduce(&job, &units, parts)
+}
+
+/// The (dimension, first transition) units of a run and what every unit reads.
+fn plan<'a>(
+    heads: &'a Heads,
+    x: &'a Inputs<'a>,
+    loss: Loss,
+    weight_grads: bool,
+) -> (Vec<(usize, usize)>, Job<'a>) {
+    let units: Vec<(usize, usize)> = (0..x.d)
+        .flat_map(|j| (0..x.b).step_by(BLOCK).map(move |b0| (j, b0)))
+        .collect();
+    let (b, k, d) = (x.b as f64, x.k as f64, x.d as f64);
+    let job = Job {
+        heads,
+        x,
+        loss,
+        qn: 1.0 / (b * k * d),
+        mn: loss.lambda_mon * 2.0 * k / (b * k * k * d),
+        weight_grads,
+    };
+    (units, job)
+}
+
+/// The units' results `parts` (in the order of `units`) added up in block order.
+fn reduce(job: &Job, units: &[(usize, usize)], parts: Vec<UnitOut>) -> Fused {
+    let x = job.x;
+    let weight_grads = job.weight_grads;
     let (w, dw) = (EMBED_DIM, x.d * EMBED_DIM);
     let mut dz = vec![0.0f32; x.b * dw];
     let (mut actor_sum, mut mon_sum) = (0.0, 0.0);

@@ -48,6 +48,34 @@ pub const CUSTOM_SAVER_MU_RAW_PENALTY: f64 = 0.1;
 /// whose steps jitter the PCPN's output by more than an action effect of ~1 % of Δp's
 /// spread, reached 0.53 (results/README.md, "A PCPN that follows the policy").
 pub const CUSTOM_SAVER_PCPN_TUNE_LR: f64 = 1e-4;
+/// Rows of each batch the PCPN's own training step reads on a custom env
+/// ([`SaverConfig::pcpn_tune_rows`], drawn at random): a pretraining batch's 128. On all
+/// 512 rows of a batch that step was a quarter of SAVER's update on Reacher-v5. Three
+/// seeds at 200 k steps end where all rows left them: success 0.98 / 0.98 / 0.96
+/// against 1.00 / 0.96 / 1.00, return −4.07 … −4.43 against −3.96 … −4.26
+/// (results/env-return/README.md, "2026-12-08, later: a lighter PCPN and the host step").
+pub const CUSTOM_SAVER_PCPN_TUNE_ROWS: usize = 128;
+/// τ samples per row of SAVER's actor loss on a custom env ([`SaverConfig::quantiles`];
+/// the paper's 32 on the presets). The fused blocks of the input gradient and of the
+/// PCPN's training step scale with K. With [`CUSTOM_SAVER_PCPN_TUNE_ROWS`] the update on
+/// Reacher-v5's shape takes 51 ms instead of 75 through candle (28-30 ms instead of 53-55
+/// on the host step, `saver bench`'s custom-env row), and three seeds at 200 k reach
+/// 0.96 / 1.00 / 0.98 success at a return of −4.17 … −4.27 (K = 32 and every row: 1.00 /
+/// 0.96 / 1.00, −3.96 … −4.26); at K = 8 one seed of three fell to 0.92, −4.65.
+pub const CUSTOM_SAVER_QUANTILES: usize = 16;
+/// PCPN pretraining batches of SAVER on a custom env (`pretrain.batches`; 5,000 on the
+/// presets), at [`CUSTOM_PRETRAIN_QUANTILES`] τ per sample: the wait before a custom
+/// env's first step, most of it these batches, fell from 24 s to 10-12 s on Reacher-v5
+/// (65,536 walk samples from 8 envs, 2 cores), while the PCPN goes on learning on the
+/// policy's own steps ([`CUSTOM_SAVER_PCPN_TUNE_LR`]). With both, five seeds per env:
+/// Reacher-v5 at 1 M 1.00 on every seed, return −3.67 … −3.86 (mean −3.79; the 5,000 ×
+/// 32 PCPN −3.77 … −3.95, −3.86); the point mass at 15 k 0.92-0.98 (every seed past
+/// 0.9; that PCPN 0.88-0.98) (results/env-return/README.md, "2026-12-08, later: a lighter PCPN and the host step").
+pub const CUSTOM_PRETRAIN_BATCHES: u64 = 2_500;
+/// τ samples per pretraining sample of SAVER on a custom env (`pretrain.quantiles`; the
+/// paper's 32 on the presets): half the fused blocks' work per batch
+/// ([`CUSTOM_PRETRAIN_BATCHES`]).
+pub const CUSTOM_PRETRAIN_QUANTILES: usize = 16;
 /// SAVER's discount on a custom env: a horizon of ~30 steps instead of ~100, with the
 /// progress completed at success ([`RunConfig::complete_at_success`]). The progress
 /// reward |p − g| − |p' − g| telescopes, so what a step's action changes in the return
@@ -189,6 +217,10 @@ pub(crate) fn recommend(c: &mut RunConfig) {
     if c.env.kind().is_none() {
         c.saver.mu_raw_penalty = CUSTOM_SAVER_MU_RAW_PENALTY;
         c.saver.pcpn_tune_lr = CUSTOM_SAVER_PCPN_TUNE_LR;
+        c.saver.pcpn_tune_rows = CUSTOM_SAVER_PCPN_TUNE_ROWS;
+        c.saver.quantiles = CUSTOM_SAVER_QUANTILES;
+        c.pretrain.batches = CUSTOM_PRETRAIN_BATCHES;
+        c.pretrain.quantiles = CUSTOM_PRETRAIN_QUANTILES;
         c.gamma = CUSTOM_SAVER_GAMMA;
         c.rollout = CUSTOM_SAVER_ROLLOUT;
         c.complete_at_success = true;
@@ -274,6 +306,15 @@ mod tests {
         assert_eq!(c.saver.mu_raw_penalty, CUSTOM_SAVER_MU_RAW_PENALTY);
         assert_eq!(c.saver.pcpn_tune_lr, CUSTOM_SAVER_PCPN_TUNE_LR);
         assert_eq!(
+            (c.saver.pcpn_tune_rows, c.saver.quantiles),
+            (CUSTOM_SAVER_PCPN_TUNE_ROWS, CUSTOM_SAVER_QUANTILES)
+        );
+        let faithful = RunConfig::paper(&custom, Algo::Saver, 1);
+        assert_eq!(
+            (faithful.saver.pcpn_tune_rows, faithful.saver.quantiles),
+            (0, 32)
+        );
+        assert_eq!(
             (c.gamma, c.rollout),
             (CUSTOM_SAVER_GAMMA, CUSTOM_SAVER_ROLLOUT)
         );
@@ -327,6 +368,11 @@ mod tests {
             let c = recommended(&EnvSpec::new(kind, d).unwrap(), Algo::Saver, 1);
             assert_eq!(c.saver.mu_raw_penalty, 0.0, "{kind:?}");
             assert_eq!(c.saver.pcpn_tune_lr, 0.0, "{kind:?}");
+            assert_eq!(
+                (c.saver.pcpn_tune_rows, c.saver.quantiles),
+                (0, 32),
+                "{kind:?}"
+            );
             assert_eq!((c.gamma, c.rollout), (0.99, 8), "{kind:?}");
             assert!(!c.complete_at_success, "{kind:?}");
             assert!(!c.lr_decay, "{kind:?}");

@@ -45,40 +45,51 @@ impl Saver {
             true => Some((self.opt.host_state()?, HostScratch::default())),
             false => None,
         };
-        'passes: for epoch in 0..self.cfg.epochs {
-            // One minibatch is the whole batch: its order changes nothing but the bits.
-            if m > 1 {
-                order.shuffle(&mut self.rng);
-            }
-            for j in 0..m {
-                // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
-                let idx = &order[j * b / m..(j + 1) * b / m];
-                let kl_stop = self.cfg.target_kl > 0.0 && !(epoch == 0 && j == 0);
-                let behaviour = behaviour.as_deref();
-                let step = match host.as_mut() {
-                    Some((h, scratch)) => self
-                        .host_minibatch(h, scratch, batch, &s, idx, behaviour, kl_stop)?
-                        .map(|(l, part)| (l, Some(part))),
-                    None => self.candle_minibatch(batch, &s, idx, behaviour, kl_stop)?,
-                };
-                let Some((l, part)) = step else {
-                    if epoch == 0 {
-                        dmu = None; // the signal's dL/dμ would miss rows
-                    }
-                    break 'passes;
-                };
-                losses.push(l);
-                if epoch == 0 {
-                    match (&mut dmu, part) {
-                        (Some(all), Some(part)) => {
-                            for (&i, row) in idx.iter().zip(part.chunks_exact(mu_dim)) {
-                                all[i * mu_dim..(i + 1) * mu_dim].copy_from_slice(row);
-                            }
+        // With two threads or more the host steps run on a pool of two made for this
+        // update: the critics on one worker, the PCPN's blocks shared by both.
+        let pool = host.as_ref().and_then(|_| self.step_pool());
+        let pooled = pool.is_some();
+        let mut passes = || -> Result<()> {
+            'passes: for epoch in 0..self.cfg.epochs {
+                // One minibatch is the whole batch: its order changes nothing but the bits.
+                if m > 1 {
+                    order.shuffle(&mut self.rng);
+                }
+                for j in 0..m {
+                    // Minibatch j holds steps [j·B/m, (j+1)·B/m) of the shuffled order.
+                    let idx = &order[j * b / m..(j + 1) * b / m];
+                    let kl_stop = self.cfg.target_kl > 0.0 && !(epoch == 0 && j == 0);
+                    let behaviour = behaviour.as_deref();
+                    let step = match host.as_mut() {
+                        Some((h, scratch)) => self
+                            .host_minibatch(h, scratch, batch, &s, idx, behaviour, kl_stop, pooled)?
+                            .map(|(l, part)| (l, Some(part))),
+                        None => self.candle_minibatch(batch, &s, idx, behaviour, kl_stop)?,
+                    };
+                    let Some((l, part)) = step else {
+                        if epoch == 0 {
+                            dmu = None; // the signal's dL/dμ would miss rows
                         }
-                        _ => dmu = None,
+                        break 'passes;
+                    };
+                    losses.push(l);
+                    if epoch == 0 {
+                        match (&mut dmu, part) {
+                            (Some(all), Some(part)) => {
+                                for (&i, row) in idx.iter().zip(part.chunks_exact(mu_dim)) {
+                                    all[i * mu_dim..(i + 1) * mu_dim].copy_from_slice(row);
+                                }
+                            }
+                            _ => dmu = None,
+                        }
                     }
                 }
             }
+            Ok(())
+        };
+        match &pool {
+            Some(pool) => pool.install(passes)?,
+            None => passes()?,
         }
         if let Some((h, _)) = host {
             self.opt.commit_host(h)?;
@@ -204,6 +215,57 @@ mod tests {
         }
     }
 
+    /// A custom env's defaults on the plane (minibatches of 5, the PCPN's step on a
+    /// draw of 7 rows) and a batch with the env's reward, some rows' raw means beyond
+    /// the wall's ±2 (a large first-layer input).
+    fn custom_case() -> (crate::config::RunConfig, crate::rollout::Batch) {
+        let spec = crate::algo::tests::plane_spec(1.0, None);
+        let l = spec.layout();
+        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
+        (config.saver.minibatch_size, config.saver.pcpn_tune_rows) = (5, 7);
+        let mut batch = random_batch(&l, 4, 6, 9, 1.0, vec![false; 24]);
+        for (i, o) in batch.obs.iter_mut().enumerate() {
+            *o *= if i % 6 == 2 { 40.0 } else { 1.0 };
+        }
+        batch.env_reward = (0..24).map(|i| -0.05 * (i % 5) as f32).collect();
+        (config, batch)
+    }
+
+    /// Three updates of SAVER at `config` on `batch` from the same start on `threads`:
+    /// every saved tensor (as f64), the statistics and the optimiser steps.
+    #[allow(clippy::type_complexity)]
+    fn three_updates(
+        config: &crate::config::RunConfig,
+        batch: &crate::rollout::Batch,
+        path: crate::algo::GradPath,
+        threads: usize,
+    ) -> (Vec<(String, Vec<f64>)>, Vec<Vec<(&'static str, f32)>>, u64) {
+        let l = config.env.layout();
+        let mut s = Saver::new(config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
+        s.set_grad_path(path);
+        s.set_threads(threads);
+        assert_eq!(s.host_path(), path == crate::algo::GradPath::Fast);
+        let stats: Vec<_> = (0..3).map(|_| s.update(batch).unwrap().values).collect();
+        let as_f64 = |x: &Tensor| {
+            let x = x.to_dtype(DType::F64).unwrap();
+            x.flatten_all().unwrap().to_vec1::<f64>().unwrap()
+        };
+        let state = s.save_state().unwrap().tensors;
+        let saved = state.iter().map(|(n, x)| (n.clone(), as_f64(x))).collect();
+        (saved, stats, s.optimizer_steps())
+    }
+
+    /// The host step's critics beside its PCPN blocks on a pool of two threads give
+    /// the bits of one thread (they share no sum; the blocks add up in block order).
+    #[test]
+    fn the_host_step_gives_one_threads_bits_on_two() {
+        let (config, batch) = custom_case();
+        let path = crate::algo::GradPath::Fast;
+        let one = three_updates(&config, &batch, path, 1);
+        let two = three_updates(&config, &batch, path, 2);
+        assert_eq!(one, two);
+    }
+
     /// The host step (host_step.rs) against the step through candle's autograd (the
     /// PCPN's gradient by autograd too) at a custom env's defaults: observations read
     /// through `auto`'s scale, the env term clipped at 0.2, the saturation wall, the
@@ -213,33 +275,11 @@ mod tests {
     /// rounding; the wall and the clip act (μ_raw beyond ±2, rows past the clip).
     #[test]
     fn the_host_step_takes_the_reference_step() {
-        use crate::algo::tests::plane_spec;
         use crate::algo::GradPath;
-        let spec = plane_spec(1.0, None);
-        let l = spec.layout();
-        let mut config = crate::algo::recommended(&spec, Algo::Saver, 1);
-        (config.saver.minibatch_size, config.saver.pcpn_tune_rows) = (5, 7);
-        // Raw means beyond the wall's ±2 on some rows: a large first-layer input.
-        let mut batch = random_batch(&l, 4, 6, 9, 1.0, vec![false; 24]);
-        for (i, o) in batch.obs.iter_mut().enumerate() {
-            *o *= if i % 6 == 2 { 40.0 } else { 1.0 };
-        }
-        batch.env_reward = (0..24).map(|i| -0.05 * (i % 5) as f32).collect();
+        let (mut config, batch) = custom_case();
         for target_kl in [0.0, 0.02] {
             config.saver.target_kl = target_kl;
-            let run = |path| {
-                let mut s = Saver::new(&config, random_pcpn(&l, DType::F32), &Device::Cpu).unwrap();
-                s.set_grad_path(path);
-                assert_eq!(s.host_path(), path == GradPath::Fast);
-                let stats: Vec<_> = (0..3).map(|_| s.update(&batch).unwrap().values).collect();
-                let state = s.save_state().unwrap().tensors;
-                let as_f64 = |x: &Tensor| {
-                    let x = x.to_dtype(DType::F64).unwrap();
-                    x.flatten_all().unwrap().to_vec1::<f64>().unwrap()
-                };
-                let saved: Vec<_> = state.iter().map(|(n, x)| (n.clone(), as_f64(x))).collect();
-                (saved, stats, s.optimizer_steps())
-            };
+            let run = |path| three_updates(&config, &batch, path, 0);
             let (host, host_stats, host_steps) = run(GradPath::Fast);
             let (reference, ref_stats, ref_steps) = run(GradPath::Reference);
             assert_eq!(host_steps, ref_steps);

@@ -131,6 +131,11 @@ impl PcpnGrad {
         self.threads = n;
     }
 
+    /// The threads of the fused blocks (0: one per core).
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+
     /// The same on `pcpn`'s weights (its thread count kept).
     pub fn refreshed(&self, pcpn: Pcpn) -> Result<Self> {
         let mut g = Self::new(pcpn)?;
@@ -214,7 +219,8 @@ fn relu_back(g: &mut [f32], a: &[f32]) {
 
 impl PcpnGrad {
     /// [`PcpnGrad::input_grad`] on host rows `x` [n, I] (row-major), the trunk's
-    /// matmuls by gemm: (L_a, L_mon), with dL/dx in `s.dx`.
+    /// matmuls by gemm: (L_a, L_mon), with dL/dx in `s.dx`. With `pooled` the fused
+    /// blocks are tasks of the rayon pool this runs in, else on the PCPN's threads.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn input_grad_host(
         &self,
@@ -225,6 +231,7 @@ impl PcpnGrad {
         taus: &[f32],
         cfg: &SaverConfig,
         s: &mut TrunkScratch,
+        pooled: bool,
     ) -> (f32, f32) {
         let [w0, b0, w1, b1] = &self.trunk;
         let (i, hid, wide) = (x.len() / n.max(1), b0.len(), b1.len());
@@ -240,7 +247,10 @@ impl PcpnGrad {
             k: taus.len() / (n * self.pcpn.dim),
             d: self.pcpn.dim,
         };
-        let mut out = fused::run(&self.heads, &batch, cfg.into(), self.threads, false);
+        let mut out = match pooled {
+            true => fused::run_in_pool(&self.heads, &batch, cfg.into(), false),
+            false => fused::run(&self.heads, &batch, cfg.into(), self.threads, false),
+        };
         relu_back(&mut out.dz, &s.z);
         s.dh.resize(n * hid, 0.0);
         matmul(&mut s.dh, &out.dz, w1, (n, wide, hid), (false, true));

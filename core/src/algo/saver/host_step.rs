@@ -19,7 +19,7 @@ use crate::algo::host_mlp::{share, value, HostMlp, MlpScratch};
 use crate::algo::{check_finite, gather_rows};
 use crate::config::MU_RAW_LIMIT;
 use crate::nets::Linear;
-use crate::optim::HostState;
+use crate::optim::{join_if, HostState};
 use crate::rng::uniform01;
 use crate::rollout::Batch;
 use crate::Result;
@@ -103,6 +103,20 @@ impl Saver {
         self.path == crate::algo::GradPath::Fast && self.layout.choices == 0 && self.dev.is_cpu()
     }
 
+    /// A pool of two threads for an update's host steps where the PCPN's blocks run on
+    /// two or more (`Algorithm::set_threads`); none (the same bits on one thread) where
+    /// they run on one or the OS refuses threads.
+    pub(super) fn step_pool(&self) -> Option<rayon::ThreadPool> {
+        if crate::algo::threads_for(self.pcpn.threads()) < 2 {
+            return None;
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .map_err(|e| tracing::warn!("SAVER's update runs on one thread: {e}"))
+            .ok()
+    }
+
     /// The policy's outputs for rows whose agent output (μ_raw) is `raw` [n, M].
     fn outputs(&self, h: &HostState, raw: &[f32]) -> Result<Outputs> {
         let head = self.agent.head();
@@ -147,6 +161,7 @@ impl Saver {
         idx: &[usize],
         behaviour: Option<&[f32]>,
         kl_stop: bool,
+        pooled: bool,
     ) -> Result<Option<(Losses, Vec<f32>)>> {
         let rows = |data: &[f32], w: usize| gather_rows(data, idx, w);
         let (o, d, a) = (
@@ -183,7 +198,7 @@ impl Saver {
                 .filter(|_| kl_stop)
                 .map(|l| (&actions[..], l)),
         };
-        self.host_step(h, scratch, &r)
+        self.host_step(h, scratch, &r, pooled)
     }
 
     /// One minibatch step on the host state `h`: the step's losses with the gradient
@@ -194,6 +209,7 @@ impl Saver {
         h: &mut HostState,
         s: &mut HostScratch,
         r: &HostRows,
+        pooled: bool,
     ) -> Result<Option<(Losses, Vec<f32>)>> {
         let (n, o, d, k) = (
             r.n,
@@ -242,26 +258,10 @@ impl Saver {
                 buf.extend_from_slice(&out.log_std);
             }
         }
-        // The vector critic: λ_c·mean (V − R)², dV = 2λ_c/(n·d)·(V − R).
+        // The critics (λ_c·mean (V − R)², dV = 2λ_c/(n·c)·(V − R), forward and
+        // backward) beside the PCPN term, whose blocks the second worker takes over
+        // once the critics are done (τ drawn where the reference step draws them).
         let critic_layers: Vec<&Linear> = self.critic.layers().iter().collect();
-        let critic = HostMlp::of(&critic_layers, h)?;
-        critic.forward(&s.xc, n, &mut s.critic);
-        let critic_loss = squared_error(&mut s.critic, r.returns, lc);
-        // The PCPN term (τ drawn where the reference step draws them).
-        let taus = uniform01(&mut self.rng, d * n * k);
-        let (actor, mon) =
-            self.pcpn
-                .input_grad_host(&s.x, n, r.target, r.adv, &taus, &self.cfg, &mut s.trunk);
-        let dx = &s.trunk.dx;
-        let mut g_mu: Vec<f32> = (0..n)
-            .flat_map(|b| dx[b * i + o..b * i + o + m].iter().copied())
-            .collect();
-        let dmu = g_mu.clone();
-        let mut g_ls: Vec<f32> = (0..n)
-            .flat_map(|b| dx[b * i + o + m..(b + 1) * i].iter().copied())
-            .collect();
-        // The env term and its critic.
-        let (mut env_pg, mut env_scale, mut env_critic) = (0.0, 0.0, 0.0);
         let env_layers: Vec<&Linear> = match &self.env {
             Some(e) => e.critic_layers(),
             None => Vec::new(),
@@ -270,12 +270,54 @@ impl Saver {
             (Some(term), Some(e)) => Some((term, e)),
             _ => None,
         };
+        let env_returns = env.map(|(_, e)| e.returns);
+        let taus = uniform01(&mut self.rng, d * n * k);
+        let HostScratch {
+            x,
+            xc,
+            critic: critic_s,
+            env_critic: env_s,
+            trunk,
+            ..
+        } = s;
+        let (pcpn, cfg) = (&self.pcpn, &self.cfg);
+        let (critics, (actor, mon)) = join_if(
+            pooled,
+            || -> Result<(f64, Option<f64>)> {
+                let critic = HostMlp::of(&critic_layers, h)?;
+                critic.forward(xc, n, critic_s);
+                let loss = squared_error(critic_s, r.returns, lc);
+                critic.backward(xc, n, critic_s);
+                let env_loss = match env_returns {
+                    Some(returns) => {
+                        let net = HostMlp::of(&env_layers, h)?;
+                        net.forward(xc, n, env_s);
+                        let loss = squared_error(env_s, returns, lc);
+                        net.backward(xc, n, env_s);
+                        Some(loss)
+                    }
+                    None => None,
+                };
+                Ok((loss, env_loss))
+            },
+            || pcpn.input_grad_host(x, n, r.target, r.adv, &taus, cfg, trunk, pooled),
+        );
+        let (critic_loss, env_critic_loss) = critics?;
+        let dx = &s.trunk.dx;
+        let mut g_mu: Vec<f32> = (0..n)
+            .flat_map(|b| dx[b * i + o..b * i + o + m].iter().copied())
+            .collect();
+        let dmu = g_mu.clone();
+        let mut g_ls: Vec<f32> = (0..n)
+            .flat_map(|b| dx[b * i + o + m..(b + 1) * i].iter().copied())
+            .collect();
+        // The env term.
+        let (mut env_pg, mut env_scale) = (0.0, 0.0);
+        let env_critic = match env_critic_loss {
+            Some(l) => check_finite("env_critic_loss", l as f32)?,
+            None => 0.0,
+        };
         if let Some((term, e)) = env {
-            HostMlp::of(&env_layers, h)?.forward(&s.xc, n, &mut s.env_critic);
-            env_critic = check_finite(
-                "env_critic_loss",
-                squared_error(&mut s.env_critic, e.returns, lc) as f32,
-            )?;
             let a = self.layout.action_dim();
             let inv_n = 1.0 / n as f32;
             // Per row: its log π's gradient at (μ, log σ) scaled by the plain weight
@@ -365,13 +407,11 @@ impl Saver {
             sum as f32 * out.ls_pass[j]
         }));
         agent.backward(&s.seen, n, &mut s.agent);
-        critic.backward(&s.xc, n, &mut s.critic);
         let mut grads = Vec::with_capacity(2 * (agent_layers.len() + 2 * critic_layers.len()) + 1);
         pairs(&agent_layers, &s.agent.grads, &mut grads);
         grads.push((self.agent.log_std_var().id(), &s.d_log_std[..]));
         pairs(&critic_layers, &s.critic.grads, &mut grads);
         if env.is_some() {
-            HostMlp::of(&env_layers, h)?.backward(&s.xc, n, &mut s.env_critic);
             pairs(&env_layers, &s.env_critic.grads, &mut grads);
         }
         let grad_norm = self.opt.step_host(h, &grads)? as f32;
