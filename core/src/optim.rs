@@ -11,8 +11,8 @@ mod host_math;
 use crate::{CoreError, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
 pub use host::HostState;
-pub(crate) use host_math::join_if;
 use host_math::to_host;
+pub(crate) use host_math::{join_if, pool_of_two};
 use serde::{Deserialize, Serialize};
 
 /// Which optimiser, with its constants.

@@ -226,12 +226,7 @@ impl Ppo {
         if !self.fast() || threads < 2 {
             return None;
         }
-        // Every hand-off is two-way, so a third thread would only wait.
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(2)
-            .build()
-            .map_err(|e| tracing::warn!("PPO's update runs on one thread: {e}"))
-            .ok()
+        crate::optim::pool_of_two("PPO's")
     }
 
     /// The networks as the hand-written step takes them.

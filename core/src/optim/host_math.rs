@@ -60,3 +60,14 @@ pub(crate) fn join_if<RA: Send, RB: Send>(
         (a(), b())
     }
 }
+
+/// A rayon pool of two threads for one update's hand-off steps (a third thread would
+/// only wait: every hand-off is two-way); none, with a warning naming `whose` update,
+/// when the OS refuses threads (the update then runs on one, the same bits).
+pub(crate) fn pool_of_two(whose: &str) -> Option<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .map_err(|e| tracing::warn!("{whose} update runs on one thread: {e}"))
+        .ok()
+}

@@ -6,6 +6,8 @@
 //! when it learns, takes its one step on the whole batch after the passes. With
 //! `saver.target_kl` the passes stop early once a minibatch's policy has moved that far
 //! from the one that acted (approximate KL), as PPO's early stop.
+//! On the CPU, for layouts without a choice, every minibatch step is the host step
+//! (host_step.rs); elsewhere the step through candle (step.rs).
 
 use super::host_step::HostScratch;
 use super::{Losses, Saver, StepRows};

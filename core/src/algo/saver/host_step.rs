@@ -110,11 +110,7 @@ impl Saver {
         if crate::algo::threads_for(self.pcpn.threads()) < 2 {
             return None;
         }
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(2)
-            .build()
-            .map_err(|e| tracing::warn!("SAVER's update runs on one thread: {e}"))
-            .ok()
+        crate::optim::pool_of_two("SAVER's")
     }
 
     /// The policy's outputs for rows whose agent output (μ_raw) is `raw` [n, M].
