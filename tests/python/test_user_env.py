@@ -124,7 +124,7 @@ def test_the_guide_recipes_run_as_written():
     assert glob.glob(os.path.join(work, "pcpn-cache", "pcpn-slider-d2-*.safetensors")), os.listdir(work)
     # 65,536 walk transitions and 16 held-out batches of 128 (the slider's 8 envs walk
     # them in about a second), then SAVER's 2,500 batches at K 16 on a custom env
-    # (about 8 s on 2 cores): the learner names them first, and where the wait passes
+    # (a few seconds on 2 cores): the learner names them first, and where the wait passes
     # 10 s the learner's and the store's progress every 10 s says how far they are.
     pcpn = glob.glob(os.path.join(work, "pcpn-cache", "pcpn-slider-d2-*.safetensors"))
     with t.safe_open(pcpn[0], framework="numpy") as f:
