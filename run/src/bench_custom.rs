@@ -62,7 +62,7 @@ pub fn custom_env_updates(seconds: f64) -> Result<()> {
     let now = seconds_per_update(&config, &batch, seconds)?;
     let old = seconds_per_update(&before, &batch, seconds)?;
     crate::out!(
-        "  {:.1} ms/update ({:.0} steps/s); with K = 32 and every row (before 2026-12-08) \
+        "  {:.1} ms/update ({:.0} steps/s); with K = 32 and every row (the defaults before 2026-12-08, on this step) \
          {:.1} ms: {:.2}x",
         now * 1e3,
         batch.len() as f64 / now,
