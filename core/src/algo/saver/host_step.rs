@@ -12,6 +12,7 @@
 //! ½ ln 2π, z = (a − μ)/σ, the env term's −mean ω·log π gives −ω/n·z/σ on μ and
 //! −ω/n·(z² − 1) on log σ (ω = Â_r, or ρ·Â_r and 0 where the clip holds).
 
+use super::env_return::EnvReturn;
 use super::grad::TrunkScratch;
 use super::step::Losses;
 use super::{Saver, Start};
@@ -314,56 +315,8 @@ impl Saver {
             None => 0.0,
         };
         if let Some((term, e)) = env {
-            let a = self.layout.action_dim();
-            let inv_n = 1.0 / n as f32;
-            // Per row: its log π's gradient at (μ, log σ) scaled by the plain weight
-            // −Â_r/n and by the push's −ω/n.
-            let (mut plain_sq, mut surrogate, mut plain_loss) = (0.0f64, 0.0f64, 0.0f64);
-            let mut push_mu = vec![0.0f32; n * m];
-            let mut push_ls = vec![0.0f32; n * l];
-            for b in 0..n {
-                let mu = &out.mu[b * m..(b + 1) * m];
-                let act = &e.actions[b * a..b * a + m];
-                let lp = log_prob(mu, &out.log_std, act);
-                let adv = e.adv[b];
-                plain_loss -= (adv * lp) as f64;
-                let omega = match e.logp_b {
-                    Some(logp_b) => {
-                        let eps = term.clip_eps();
-                        let (rho, a64) = (((lp - logp_b[b]) as f64).exp(), adv as f64);
-                        surrogate += (rho * a64).min(rho.clamp(1.0 - eps, 1.0 + eps) * a64);
-                        let held = (a64 > 0.0 && rho > 1.0 + eps) || (a64 < 0.0 && rho < 1.0 - eps);
-                        if held {
-                            0.0
-                        } else {
-                            (rho * a64) as f32
-                        }
-                    }
-                    None => adv,
-                };
-                for j in 0..m {
-                    let sigma = out.log_std[j].exp();
-                    let z = (act[j] - mu[j]) / sigma;
-                    let (dlp_mu, dlp_ls) = (z / sigma, z * z - 1.0);
-                    let (pm, pl) = (-adv * inv_n * dlp_mu, -adv * inv_n * dlp_ls);
-                    plain_sq += (pm * pm + pl * pl) as f64;
-                    push_mu[b * m + j] = -omega * inv_n * dlp_mu;
-                    push_ls[b * l + j] = -omega * inv_n * dlp_ls;
-                }
-            }
-            let sq = |v: &[f32]| v.iter().map(|x| (x * x) as f64).sum::<f64>();
-            let vector = (sq(&g_mu) + sq(&g_ls)).sqrt();
-            let c = term.scale_of(vector, plain_sq.sqrt());
-            for (g, p) in g_mu.iter_mut().zip(&push_mu) {
-                *g += c * p;
-            }
-            for (g, p) in g_ls.iter_mut().zip(&push_ls) {
-                *g += c * p;
-            }
-            let unit = match e.logp_b {
-                Some(_) => -surrogate / n as f64,
-                None => plain_loss / n as f64,
-            };
+            let dims = (m, l, self.layout.action_dim());
+            let (unit, c) = env_push(term, e, &out, dims, &mut g_mu, &mut g_ls);
             env_pg = check_finite("env_pg_loss", unit as f32)?;
             env_scale = check_finite("env_pg_scale", c)?;
         }
@@ -419,6 +372,69 @@ impl Saver {
             dmu,
         )))
     }
+}
+
+/// The env term at the policy outputs `out` of `e`'s rows: its push on (μ, log σ),
+/// scaled to c = w·|g_v| / |g_r| against the PCPN term's gradient (`g_mu`, `g_ls`, to
+/// which it is added); returns the unit loss and c. `dims` = (M, L, action_dim).
+fn env_push(
+    term: &EnvReturn,
+    e: &HostEnvRows,
+    out: &Outputs,
+    (m, l, a): (usize, usize, usize),
+    g_mu: &mut [f32],
+    g_ls: &mut [f32],
+) -> (f64, f32) {
+    let n = e.adv.len();
+    let inv_n = 1.0 / n as f32;
+    // Per row: its log π's gradient at (μ, log σ) scaled by the plain weight −Â_r/n
+    // and by the push's −ω/n.
+    let (mut plain_sq, mut surrogate, mut plain_loss) = (0.0f64, 0.0f64, 0.0f64);
+    let mut push_mu = vec![0.0f32; n * m];
+    let mut push_ls = vec![0.0f32; n * l];
+    for b in 0..n {
+        let mu = &out.mu[b * m..(b + 1) * m];
+        let act = &e.actions[b * a..b * a + m];
+        let lp = log_prob(mu, &out.log_std, act);
+        let adv = e.adv[b];
+        plain_loss -= (adv * lp) as f64;
+        let omega = match e.logp_b {
+            Some(logp_b) => {
+                let eps = term.clip_eps();
+                let (rho, a64) = (((lp - logp_b[b]) as f64).exp(), adv as f64);
+                surrogate += (rho * a64).min(rho.clamp(1.0 - eps, 1.0 + eps) * a64);
+                let held = (a64 > 0.0 && rho > 1.0 + eps) || (a64 < 0.0 && rho < 1.0 - eps);
+                if held {
+                    0.0
+                } else {
+                    (rho * a64) as f32
+                }
+            }
+            None => adv,
+        };
+        for j in 0..m {
+            let sigma = out.log_std[j].exp();
+            let z = (act[j] - mu[j]) / sigma;
+            let (dlp_mu, dlp_ls) = (z / sigma, z * z - 1.0);
+            let (pm, pl) = (-adv * inv_n * dlp_mu, -adv * inv_n * dlp_ls);
+            plain_sq += (pm * pm + pl * pl) as f64;
+            push_mu[b * m + j] = -omega * inv_n * dlp_mu;
+            push_ls[b * l + j] = -omega * inv_n * dlp_ls;
+        }
+    }
+    let sq = |v: &[f32]| v.iter().map(|x| (x * x) as f64).sum::<f64>();
+    let c = term.scale_of((sq(g_mu) + sq(g_ls)).sqrt(), plain_sq.sqrt());
+    for (g, p) in g_mu.iter_mut().zip(&push_mu) {
+        *g += c * p;
+    }
+    for (g, p) in g_ls.iter_mut().zip(&push_ls) {
+        *g += c * p;
+    }
+    let unit = match e.logp_b {
+        Some(_) => -surrogate / n as f64,
+        None => plain_loss / n as f64,
+    };
+    (unit, c)
 }
 
 /// `λ·mean (V − R)²` over an MLP's last output V [n, c] in `s` against `returns`, with its
