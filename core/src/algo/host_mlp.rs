@@ -69,9 +69,7 @@ impl<'a> HostMlp<'a> {
                 matmul(&mut s.dx, &s.dy, w, (n, *o, *i), (false, true));
                 // Through the ReLU that made the input: no gradient where it was cut
                 // (a select, not a branch, so that the loop vectorises).
-                for (g, a) in s.dx.iter_mut().zip(input) {
-                    *g = if *a > 0.0 { *g } else { 0.0 };
-                }
+                relu_back(&mut s.dx, input);
                 std::mem::swap(&mut s.dy, &mut s.dx);
             }
         }
@@ -108,5 +106,42 @@ pub(crate) fn share(taken: bool, tie: bool) -> f32 {
         1.0
     } else {
         0.0
+    }
+}
+
+/// `g` ← g ⊙ 1[a > 0]: a gradient through the ReLU whose output was `a` (a select, not a
+/// branch, so that the loop vectorises).
+pub(crate) fn relu_back(g: &mut [f32], a: &[f32]) {
+    for (g, a) in g.iter_mut().zip(a) {
+        *g = if *a > 0.0 { *g } else { 0.0 };
+    }
+}
+
+/// log σ = clamp(ℓ, lo, hi) of each entry of the variable ℓ (`raw`), candle's clamp being
+/// max(ℓ, lo) then min(·, hi), with the share of a gradient at log σ that reaches ℓ
+/// (ties split as candle splits them); unbounded: ℓ itself and 1.
+pub(crate) fn clamped_log_std(raw: &[f32], bounds: Option<(f64, f64)>) -> (Vec<f32>, Vec<f32>) {
+    raw.iter()
+        .map(|&p| match bounds {
+            Some((lo, hi)) => {
+                let (lo, hi) = (lo as f32, hi as f32);
+                let m = p.max(lo);
+                (m.min(hi), share(p > lo, p == lo) * share(m < hi, m == hi))
+            }
+            None => (p, 1.0),
+        })
+        .unzip()
+}
+
+/// Each layer's (weight, bias) gradient of `grads` (as [`HostMlp::backward`] leaves
+/// them) with its variable's id, appended to `out` (what `Optimizer::step_host` takes).
+pub(crate) fn layer_grads<'s>(
+    layers: &[&Linear],
+    grads: &'s [(Vec<f32>, Vec<f32>)],
+    out: &mut Vec<(candle_core::TensorId, &'s [f32])>,
+) {
+    for (l, (dw, db)) in layers.iter().zip(grads) {
+        out.push((l.w.id(), &dw[..]));
+        out.push((l.b.id(), &db[..]));
     }
 }

@@ -9,7 +9,7 @@
 
 use super::minibatch::{Minibatch, Totals};
 use crate::algo::check_finite;
-use crate::algo::host_mlp::{share, value, HostMlp, MlpScratch};
+use crate::algo::host_mlp::{clamped_log_std, layer_grads, share, value, HostMlp, MlpScratch};
 use crate::config::{HeadConfig, PpoConfig};
 use crate::nets::Linear;
 use crate::optim::{join_if, HostState};
@@ -94,10 +94,7 @@ pub(super) fn step_grads<'s>(
         (&nets.agent, &scratch.agent.mlp.grads),
         (&nets.critic, &scratch.critic.grads),
     ] {
-        for (l, (dw, db)) in layers.iter().zip(g) {
-            grads.push((l.w.id(), &dw[..]));
-            grads.push((l.b.id(), &db[..]));
-        }
+        layer_grads(layers, g, &mut grads);
     }
     grads.push((nets.log_std.id(), &scratch.agent.d_log_std[..]));
     Ok(grads)
@@ -125,18 +122,7 @@ fn policy_grads(
     let na = agent.layers.last().map_or(0, |l| l.3);
     let raw_log_std = value(h, nets.log_std)?;
     // log σ = clamp(p, lo, hi); candle's clamp is max(p, lo) then min(·, hi).
-    let (log_std, ls_pass): (Vec<f32>, Vec<f32>) = raw_log_std
-        .iter()
-        .map(|&p| match nets.head.log_std_bounds {
-            Some((lo, hi)) => {
-                let (lo, hi) = (lo as f32, hi as f32);
-                let m = p.max(lo);
-                let pass = share(p > lo, p == lo) * share(m < hi, m == hi);
-                (m.min(hi), pass)
-            }
-            None => (p, 1.0),
-        })
-        .unzip();
+    let (log_std, ls_pass) = clamped_log_std(raw_log_std, nets.head.log_std_bounds);
 
     // The agent: μ_raw [n, na], μ = bound·tanh(μ_raw) or μ_raw.
     agent.forward(&mb.obs, n, &mut s.mlp);

@@ -14,6 +14,7 @@
 
 use crate::algo::dense::matmul;
 use crate::algo::fused::{self, Heads};
+use crate::algo::host_mlp::relu_back;
 use crate::config::SaverConfig;
 use crate::loss::{monotonic_penalty, quantile_loss};
 use crate::nets::Pcpn;
@@ -207,13 +208,6 @@ fn relu_layer(y: &mut Vec<f32>, x: &[f32], w: &[f32], b: &[f32], (n, i, o): (usi
         for (v, bias) in row.iter_mut().zip(b) {
             *v = (*v + bias).max(0.0);
         }
-    }
-}
-
-/// `g` [n, o] ← g ⊙ 1[a > 0] (through the ReLU whose output was `a`).
-fn relu_back(g: &mut [f32], a: &[f32]) {
-    for (g, a) in g.iter_mut().zip(a) {
-        *g = if *a > 0.0 { *g } else { 0.0 };
     }
 }
 

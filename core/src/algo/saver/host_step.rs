@@ -16,7 +16,7 @@ use super::env_return::EnvReturn;
 use super::grad::TrunkScratch;
 use super::step::Losses;
 use super::{Saver, Start};
-use crate::algo::host_mlp::{share, value, HostMlp, MlpScratch};
+use crate::algo::host_mlp::{clamped_log_std, layer_grads, value, HostMlp, MlpScratch};
 use crate::algo::{check_finite, gather_rows};
 use crate::config::MU_RAW_LIMIT;
 use crate::nets::Linear;
@@ -24,31 +24,30 @@ use crate::optim::{join_if, HostState};
 use crate::rng::uniform01;
 use crate::rollout::Batch;
 use crate::Result;
-use candle_core::TensorId;
 
 /// One minibatch's rows on the host, row-major.
 struct HostRows<'a> {
-    pub(super) n: usize,
+    n: usize,
     /// [n, o], raw.
-    pub(super) obs: &'a [f32],
+    obs: &'a [f32],
     /// [n, d]: Δp targets, advantages and the vector critic's targets.
-    pub(super) target: &'a [f32],
-    pub(super) adv: &'a [f32],
-    pub(super) returns: &'a [f32],
+    target: &'a [f32],
+    adv: &'a [f32],
+    returns: &'a [f32],
     /// The env term's rows, when it learns from this batch.
-    pub(super) env: Option<HostEnvRows<'a>>,
+    env: Option<HostEnvRows<'a>>,
     /// For the KL stop of `saver.target_kl`: the rows' actions [n, a] and their log μ(a|o)
     /// under the policy that acted.
-    pub(super) kl_check: Option<(&'a [f32], &'a [f32])>,
+    kl_check: Option<(&'a [f32], &'a [f32])>,
 }
 
 /// The env term's rows: the scalar critic's targets, the advantages Â_r, the actions
 /// and, with the clip, log μ(a|o) of the policy that acted.
 struct HostEnvRows<'a> {
-    pub(super) returns: &'a [f32],
-    pub(super) adv: &'a [f32],
-    pub(super) actions: &'a [f32],
-    pub(super) logp_b: Option<&'a [f32]>,
+    returns: &'a [f32],
+    adv: &'a [f32],
+    actions: &'a [f32],
+    logp_b: Option<&'a [f32]>,
 }
 
 /// The buffers of the host step, kept across an update's minibatches.
@@ -86,18 +85,6 @@ fn log_prob(mu: &[f32], log_std: &[f32], a: &[f32]) -> f32 {
         .sum()
 }
 
-/// `(layers' weight, bias)` gradient pairs of `layers` from `grads`.
-fn pairs<'s>(
-    layers: &[&Linear],
-    grads: &'s [(Vec<f32>, Vec<f32>)],
-    out: &mut Vec<(TensorId, &'s [f32])>,
-) {
-    for (l, (dw, db)) in layers.iter().zip(grads) {
-        out.push((l.w.id(), &dw[..]));
-        out.push((l.b.id(), &db[..]));
-    }
-}
-
 impl Saver {
     /// Whether the passes of `saver.epochs` take the host step.
     pub(super) fn host_path(&self) -> bool {
@@ -118,18 +105,7 @@ impl Saver {
     fn outputs(&self, h: &HostState, raw: &[f32]) -> Result<Outputs> {
         let head = self.agent.head();
         let var = value(h, self.agent.log_std_var())?;
-        // log σ = clamp(ℓ, lo, hi), candle's clamp being max(ℓ, lo) then min(·, hi).
-        let (log_std, ls_pass) = var
-            .iter()
-            .map(|&p| match head.log_std_bounds {
-                Some((lo, hi)) => {
-                    let (lo, hi) = (lo as f32, hi as f32);
-                    let m = p.max(lo);
-                    (m.min(hi), share(p > lo, p == lo) * share(m < hi, m == hi))
-                }
-                None => (p, 1.0),
-            })
-            .unzip();
+        let (log_std, ls_pass) = clamped_log_std(var, head.log_std_bounds);
         let (mu, tanh) = match head.mu_bound {
             Some(b) => {
                 let t: Vec<f32> = raw.iter().map(|r| r.tanh()).collect();
@@ -357,11 +333,11 @@ impl Saver {
         }));
         agent.backward(&s.seen, n, &mut s.agent);
         let mut grads = Vec::with_capacity(2 * (agent_layers.len() + 2 * critic_layers.len()) + 1);
-        pairs(&agent_layers, &s.agent.grads, &mut grads);
+        layer_grads(&agent_layers, &s.agent.grads, &mut grads);
         grads.push((self.agent.log_std_var().id(), &s.d_log_std[..]));
-        pairs(&critic_layers, &s.critic.grads, &mut grads);
+        layer_grads(&critic_layers, &s.critic.grads, &mut grads);
         if env.is_some() {
-            pairs(&env_layers, &s.env_critic.grads, &mut grads);
+            layer_grads(&env_layers, &s.env_critic.grads, &mut grads);
         }
         let grad_norm = self.opt.step_host(h, &grads)? as f32;
         Ok(Some((
